@@ -1,0 +1,50 @@
+"""scene_recon: one ament_python package holding the ROS-free core packages and the ROS 2 nodes.
+
+Installable two ways:
+* `colcon build` on a stock ROS 2 (Kilted/Jazzy) install: console scripts land in
+  `lib/scene_recon` (see setup.cfg) so `ros2 run scene_recon <node>` finds them, and launch/config
+  files under `share/scene_recon`;
+* `pip install -e .` into the project venv (`make setup`): console scripts in `.venv/bin`.
+"""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "scene_recon"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    description="RGB-D stream to an interactive, kinematic scene (panoptic mapping, contact graph, CAD replacement)",
+    packages=find_packages(
+        include=[
+            "scene_recon",
+            "scene_recon.*",
+            "panoptic_mapping",
+            "panoptic_mapping.*",
+            "scene_graph",
+            "scene_graph.*",
+            "cad_replacement",
+            "cad_replacement.*",
+            "ros_nodes",
+            "ros_nodes.*",
+        ]
+    ),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.py")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+    ],
+    package_data={"scene_recon": ["config/*.yaml"]},
+    include_package_data=True,
+    install_requires=["setuptools"],
+    zip_safe=False,
+    python_requires=">=3.10",
+    entry_points={
+        "console_scripts": [
+            "scene-recon = scene_recon.cli:main",
+        ],
+    },
+)
