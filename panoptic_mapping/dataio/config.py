@@ -1,0 +1,45 @@
+"""Configuration of the data input layer (bags and frame folders); mirrors `config/data.yaml`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class TopicConfig:
+    """Bag topics. Empty strings are auto-detected from the message types and topic names."""
+
+    color: str = ""
+    depth: str = ""
+    camera_info: str = ""
+    #: Optional ground-truth panoptic label image (32SC1), e.g. from `scene-recon generate`.
+    labels: str = ""
+    tf: str = "/tf"
+    tf_static: str = "/tf_static"
+
+
+@dataclass
+class DataInputConfig:
+    """How frames are read, synchronised and posed."""
+
+    topics: TopicConfig = field(default_factory=TopicConfig)
+    #: Gravity-aligned (z up) fixed frame the camera poses are expressed in.
+    map_frame: str = "map"
+    #: Frame of the camera's optical axis; empty: the color image's header.frame_id.
+    camera_frame: str = ""
+    #: Approximate time synchronisation: max |t_color - t_depth| for a pair, seconds.
+    sync_slop_s: float = 0.02
+    #: Max time a pose may be extrapolated past the first/last TF sample, seconds.
+    tf_max_extrapolation_s: float = 0.05
+    #: Max gap between two TF samples that is still interpolated, seconds.
+    tf_max_gap_s: float = 1.0
+    #: True: frames without a pose are skipped (and counted); False: yielded with pose None.
+    require_pose: bool = True
+    #: Read only every `stride`-th synchronised frame, starting at `start`, at most `max_frames` (0: all).
+    start: int = 0
+    stride: int = 1
+    max_frames: int = 0
+    #: Override camera intrinsics [fx, fy, cx, cy] (folders without calibration, bags without info).
+    intrinsics: list[float] = field(default_factory=list)
+    #: Folder datasets: depth PNG units per metre (TUM: 5000, 7-Scenes: 1000); 0 = dataset default.
+    depth_scale: float = 0.0

@@ -1,0 +1,126 @@
+"""What a bag or frame folder holds: topics, counts, rates, resolution, duration and pose coverage."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .bag import IMAGE_TYPE, INFO_TYPE, RosbagLoader
+from .config import DataInputConfig
+from .folders import _read_image
+from .frame import DatasetError
+from .registry import detect_format, open_dataset
+from .transforms import TransformLookupError
+
+
+def _rate(times_ns: list[int]) -> float:
+    if len(times_ns) < 2:
+        return 0.0
+    span = (max(times_ns) - min(times_ns)) * 1e-9
+    return (len(times_ns) - 1) / span if span > 0 else 0.0
+
+
+def inspect_dataset(path: str | Path, config: DataInputConfig | None = None) -> dict[str, Any]:
+    """Summary of `path` as plain data (printed by `scene-recon inspect`, `--json` for machines)."""
+    config = config or DataInputConfig()
+    fmt = detect_format(path)
+    if fmt == "rosbag2":
+        return _inspect_bag(Path(path), config)
+    return _inspect_folder(Path(path), config, fmt)
+
+
+def _inspect_bag(path: Path, config: DataInputConfig) -> dict[str, Any]:
+    # Topic selection may fail (e.g. no depth): still report the topics, then the error.
+    try:
+        loader = RosbagLoader(path, config)
+    except DatasetError as exc:
+        from rosbags.highlevel import AnyReader
+
+        try:
+            with AnyReader([path]) as reader:
+                topics = [{"topic": c.topic, "type": c.msgtype, "count": c.msgcount} for c in reader.connections]
+        except Exception:
+            raise exc from None
+        return {"path": str(path), "format": "rosbag2", "topics": topics, "error": str(exc)}
+    with loader:
+        reader = loader._reader
+        log_times: dict[str, list[int]] = {c.topic: [] for c in reader.connections}
+        first: dict[str, Any] = {}
+        try:
+            for conn, t, raw in reader.messages():
+                log_times[conn.topic].append(t)
+                if conn.topic not in first and conn.msgtype in (IMAGE_TYPE, INFO_TYPE):
+                    first[conn.topic] = reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:
+            raise DatasetError(f"{path}: bag is truncated or corrupt: {exc}") from exc
+        topics = []
+        for c in sorted(reader.connections, key=lambda c: c.topic):
+            entry: dict[str, Any] = {
+                "topic": c.topic, "type": c.msgtype, "count": len(log_times[c.topic]),
+                "rate_hz": round(_rate(log_times[c.topic]), 3),
+            }
+            msg = first.get(c.topic)
+            if msg is not None:
+                entry["width"], entry["height"] = int(msg.width), int(msg.height)
+                if c.msgtype == IMAGE_TYPE:
+                    entry["encoding"] = msg.encoding
+            role = next((r for r, t in loader.topics.items() if t == c.topic), None)
+            if role:
+                entry["role"] = role
+            topics.append(entry)
+        pairs = posed = 0
+        camera_frame = config.camera_frame or (first[loader.topics["color"]].header.frame_id
+                                               if loader.topics["color"] in first else "")
+        for stamp, _c, _d, _l in loader.iter_pairs():
+            pairs += 1
+            try:
+                loader.pose_at(camera_frame, stamp)
+                posed += 1
+            except TransformLookupError:
+                pass
+        starts = [min(v) for v in log_times.values() if v]
+        ends = [max(v) for v in log_times.values() if v]
+        color = first.get(loader.topics["color"])
+        return {
+            "path": str(path),
+            "format": "rosbag2",
+            "storage": "mcap" if any(path.glob("*.mcap")) or path.suffix == ".mcap" else "sqlite3",
+            "duration_s": round((max(ends) - min(starts)) * 1e-9, 3) if starts else 0.0,
+            "start_time_s": round(min(starts) * 1e-9, 6) if starts else 0.0,
+            "messages": sum(len(v) for v in log_times.values()),
+            "topics": topics,
+            "selected_topics": {k: v for k, v in loader.topics.items() if v},
+            "resolution": [int(color.width), int(color.height)] if color is not None else None,
+            "frames": pairs,
+            "frame_rate_hz": round(pairs / max((max(ends) - min(starts)) * 1e-9, 1e-9), 3) if pairs > 1 else 0.0,
+            "camera_frame": camera_frame,
+            "map_frame": config.map_frame,
+            "tf_frames": sorted(loader.tf.frames),
+            "posed_frames": posed,
+            "pose_coverage": round(posed / pairs, 4) if pairs else 0.0,
+            "skipped": loader.skips.as_dict(),
+        }
+
+
+def _inspect_folder(path: Path, config: DataInputConfig, fmt: str) -> dict[str, Any]:
+    loader = open_dataset(path, config)
+    entries = loader.entries
+    stamps = np.array([e[0] for e in entries], dtype=np.int64)
+    posed = sum(1 for e in entries if e[3] is not None)
+    first = _read_image(entries[0][1], depth=False) if entries else None
+    duration = (stamps[-1] - stamps[0]) * 1e-9 if len(stamps) > 1 else 0.0
+    return {
+        "path": str(path),
+        "format": fmt,
+        "frames": len(entries),
+        "resolution": [int(first.shape[1]), int(first.shape[0])] if first is not None else None,
+        "duration_s": round(float(duration), 3),
+        "frame_rate_hz": round((len(stamps) - 1) / duration, 3) if duration > 0 else 0.0,
+        "intrinsics": list(loader._k),
+        "depth_scale": loader.depth_scale,
+        "posed_frames": posed,
+        "pose_coverage": round(posed / len(entries), 4) if entries else 0.0,
+        "skipped": loader.skips.as_dict(),
+    }

@@ -1,0 +1,40 @@
+"""Pick a loader by looking at a path (like kiss-icp's dataloaders), and describe what it holds."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from .bag import RosbagLoader, is_bag
+from .config import DataInputConfig
+from .folders import SevenScenesLoader, TumLoader, is_seven_scenes, is_tum
+from .frame import DatasetError
+
+#: (name, detector, loader class), tried in order.
+LOADERS: list[tuple[str, Callable[[Path], bool], type]] = [
+    ("rosbag2", is_bag, RosbagLoader),
+    ("tum", is_tum, TumLoader),
+    ("7scenes", is_seven_scenes, SevenScenesLoader),
+]
+
+
+def detect_format(path: str | Path) -> str:
+    """Name of the loader for `path`; raises DatasetError saying what was expected."""
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path} does not exist")
+    for name, detect, _ in LOADERS:
+        if detect(path):
+            return name
+    raise DatasetError(
+        f"{path} is not a recognised RGB-D source. Expected a ROS 2 bag (.mcap/.db3 file or a folder with "
+        "metadata.yaml), a TUM folder (rgb.txt + depth.txt) or a 7-Scenes folder (frame-XXXXXX.color.png)"
+    )
+
+
+def open_dataset(path: str | Path, config: DataInputConfig | None = None) -> Any:
+    """Open `path` with the matching loader; the result iterates `RGBDFrame`s and has `.skips`."""
+    name = detect_format(path)
+    loader_cls = next(cls for n, _, cls in LOADERS if n == name)
+    return loader_cls(Path(path), config or DataInputConfig())
