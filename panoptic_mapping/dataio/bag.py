@@ -198,7 +198,8 @@ class RosbagLoader:
         topics = {self.topics["tf"], self.topics["tf_static"], self.topics["camera_info"]} - {""}
         conns = [c for c in self._reader.connections if c.topic in topics]
         try:
-            for conn, _t, raw in self._reader.messages(connections=conns):
+            # rosbags reads every topic when given no connection: guard the empty case.
+            for conn, _t, raw in self._reader.messages(connections=conns) if conns else ():
                 msg = self._reader.deserialize(raw, conn.msgtype)
                 if conn.msgtype == INFO_TYPE:
                     self._add_info(msg)
@@ -248,7 +249,7 @@ class RosbagLoader:
         depths: deque[_Pending] = deque()
         labels: dict[int, _Pending] = {}
         last = {color_t: None, depth_t: None, label_t: None}
-        newest_color = newest = -(2**62)
+        newest_color = newest_label = newest = -(2**62)
         last_emitted = -(2**62)
         # A depth waits for a color stamped at or after it (a closer one may still come), but not
         # longer than `horizon` of stream time, so a dead color stream cannot pile up memory.
@@ -258,8 +259,9 @@ class RosbagLoader:
             nonlocal last_emitted
             while depths:
                 d = depths[0]
-                if not force and newest_color < d.stamp and newest - d.stamp < horizon:
-                    return  # a closer color may still arrive
+                waiting = newest_color < d.stamp or (label_t and newest_label < d.stamp)
+                if not force and waiting and newest - d.stamp < horizon:
+                    return  # a closer color (or the frame's labels) may still arrive
                 depths.popleft()
                 for k in [k for k in labels if k < d.stamp]:
                     del labels[k]
@@ -296,6 +298,7 @@ class RosbagLoader:
                     newest_color = stamp
                 else:
                     labels[stamp] = item
+                    newest_label = max(newest_label, stamp)
                 yield from finalize(force=False)
         except DatasetError:
             raise

@@ -100,7 +100,7 @@ def slerp(q0: np.ndarray, q1: np.ndarray, u: float) -> np.ndarray:
     dot = float(np.dot(q0, q1))
     if dot < 0:
         q1, dot = -q1, -dot
-    if dot > 0.9995:  # nearly identical: linear interpolation is exact enough and stable
+    if dot > 1.0 - 1e-12:  # (nearly) identical: sin(theta) would vanish; nlerp is exact to ~1e-12 here
         q = q0 + u * (q1 - q0)
         return q / np.linalg.norm(q)
     theta = np.arccos(np.clip(dot, -1.0, 1.0))

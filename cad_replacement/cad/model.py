@@ -1,0 +1,297 @@
+"""The CAD model type shared by procedural, imported and exported models: links, joints, kinematics.
+
+Canonical frame (every ``CadModel``): z up, front = +x (the side a user faces: doors open towards
++x, drawers slide along +x), +y = z cross x: the model's own left, i.e. the right-hand side of a
+viewer standing in front of it.
+The origin is the bottom centre of the model's axis-aligned bounding box in the closed
+configuration (all joints at ``zero_configuration()``, which is 0 for procedural models).
+The root link frame is the model frame; each other link has its own frame (its mesh is expressed
+in it) and hangs off its parent through exactly one joint.
+
+A joint's ``origin`` maps the joint frame into the parent link frame; the child link frame equals
+the joint frame moved by the joint motion (rotation about / translation along ``axis``, both
+given in the joint frame) -- the URDF convention, so export/import are one-to-one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import trimesh
+from numpy.typing import ArrayLike, NDArray
+
+from .feature_types import ModelFeatures
+from .transforms import invert_rigid, is_rigid, rotation_about, translation, unit
+
+JointType = Literal["revolute", "prismatic", "fixed"]
+JOINT_TYPES: tuple[str, ...] = ("revolute", "prismatic", "fixed")
+ParamValue = float | int | str
+RGBA = tuple[float, float, float, float]
+
+
+@dataclass(frozen=True, eq=False)
+class Joint:
+    """One joint (URDF semantics); limits in rad (revolute) or m (prismatic), ``lower < upper``."""
+
+    name: str
+    type: JointType
+    parent: str
+    child: str
+    origin: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
+    axis: NDArray[np.float64] = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    lower: float = 0.0
+    upper: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.type not in JOINT_TYPES:
+            raise ValueError(f"joint {self.name!r}: type must be one of {JOINT_TYPES}, got {self.type!r}")
+        if not self.name or not self.parent or not self.child:
+            raise ValueError(f"joint {self.name!r}: name, parent and child must be non-empty")
+        if self.parent == self.child:
+            raise ValueError(f"joint {self.name!r}: parent and child are both {self.parent!r}")
+        origin = np.array(self.origin, dtype=np.float64)
+        if not is_rigid(origin):
+            raise ValueError(f"joint {self.name!r}: origin must be a rigid 4x4 transform")
+        origin.setflags(write=False)
+        axis = unit(self.axis, f"joint {self.name!r} axis")
+        axis.setflags(write=False)
+        object.__setattr__(self, "origin", origin)
+        object.__setattr__(self, "axis", axis)
+        lower, upper = float(self.lower), float(self.upper)
+        if self.type == "fixed":
+            lower = upper = 0.0
+        elif not (np.isfinite(lower) and np.isfinite(upper) and lower < upper):
+            raise ValueError(f"joint {self.name!r}: need finite limits lower < upper, got [{lower}, {upper}]")
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+
+    @property
+    def movable(self) -> bool:
+        return self.type != "fixed"
+
+    @property
+    def zero_value(self) -> float:
+        """The closed/rest value: 0 clipped into the limits."""
+        return float(np.clip(0.0, self.lower, self.upper))
+
+    def clip(self, value: float) -> float:
+        return float(np.clip(value, self.lower, self.upper))
+
+    def motion(self, value: float) -> NDArray[np.float64]:
+        """Transform of the child frame relative to the joint frame at joint value ``value``."""
+        if self.type == "revolute":
+            return rotation_about(self.axis, value)
+        if self.type == "prismatic":
+            return translation(self.axis * value)
+        return np.eye(4)
+
+    def transform(self, value: float) -> NDArray[np.float64]:
+        """Child link pose in the parent link frame at ``value`` (clipped to the limits)."""
+        return self.origin @ self.motion(self.clip(value))
+
+
+@dataclass(frozen=True, eq=False)
+class Link:
+    """A rigid part; ``mesh`` is expressed in the link frame (procedural links are watertight)."""
+
+    name: str
+    mesh: trimesh.Trimesh
+    color: RGBA | None = None
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError("link name must be non-empty")
+        if not isinstance(self.mesh, trimesh.Trimesh):
+            raise TypeError(f"link {self.name!r}: mesh must be a trimesh.Trimesh")
+
+
+@dataclass(frozen=True, eq=False)
+class CadModel:
+    """A (possibly articulated) CAD model in its canonical frame with its matching features."""
+
+    class_name: str
+    model_id: str
+    links: tuple[Link, ...]
+    joints: tuple[Joint, ...]
+    features: ModelFeatures
+    params: Mapping[str, ParamValue] = field(default_factory=dict)
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "links", tuple(self.links))
+        object.__setattr__(self, "joints", tuple(self.joints))
+        object.__setattr__(self, "params", dict(self.params))
+        names = [lk.name for lk in self.links]
+        if not names:
+            raise ValueError(f"model {self.model_id!r} has no links")
+        if len(set(names)) != len(names):
+            raise ValueError(f"model {self.model_id!r}: duplicate link names {names}")
+        joint_names = [j.name for j in self.joints]
+        if len(set(joint_names)) != len(joint_names):
+            raise ValueError(f"model {self.model_id!r}: duplicate joint names {joint_names}")
+        known = set(names)
+        children: dict[str, Joint] = {}
+        for j in self.joints:
+            for end in (j.parent, j.child):
+                if end not in known:
+                    raise ValueError(f"joint {j.name!r} refers to unknown link {end!r}")
+            if j.child in children:
+                raise ValueError(f"link {j.child!r} has two parent joints")
+            children[j.child] = j
+        roots = [n for n in names if n not in children]
+        if len(roots) != 1:
+            raise ValueError(f"model {self.model_id!r} must have exactly one root link, got {roots}")
+        # Breadth-first order from the root: also proves the joint graph is a connected tree.
+        order: list[Joint] = []
+        frontier = [roots[0]]
+        by_parent: dict[str, list[Joint]] = {}
+        for j in self.joints:
+            by_parent.setdefault(j.parent, []).append(j)
+        while frontier:
+            nxt = []
+            for parent in frontier:
+                for j in by_parent.get(parent, []):
+                    order.append(j)
+                    nxt.append(j.child)
+            frontier = nxt
+        if len(order) != len(self.joints):
+            raise ValueError(f"model {self.model_id!r}: joints form a cycle or are disconnected")
+        object.__setattr__(self, "_root", roots[0])
+        object.__setattr__(self, "_order", tuple(order))
+
+    # ------------------------------------------------------------------ structure
+    @property
+    def root_link(self) -> str:
+        return self._root  # type: ignore[attr-defined, no-any-return]
+
+    @property
+    def size(self) -> NDArray[np.float64]:
+        """Overall extents (x, y, z) = (depth, width, height) in the closed configuration."""
+        return self.features.box_size
+
+    @property
+    def movable_joints(self) -> tuple[Joint, ...]:
+        return tuple(j for j in self.joints if j.movable)
+
+    @property
+    def is_articulated(self) -> bool:
+        return bool(self.movable_joints)
+
+    def link(self, name: str) -> Link:
+        for lk in self.links:
+            if lk.name == name:
+                return lk
+        raise KeyError(f"model {self.model_id!r} has no link {name!r}")
+
+    def joint(self, name: str) -> Joint:
+        for j in self.joints:
+            if j.name == name:
+                return j
+        raise KeyError(f"model {self.model_id!r} has no joint {name!r}")
+
+    def zero_configuration(self) -> dict[str, float]:
+        """Joint values of the closed configuration (the one the canonical frame refers to)."""
+        return {j.name: j.zero_value for j in self.movable_joints}
+
+    # ------------------------------------------------------------------ kinematics
+    def link_poses(self, joint_values: Mapping[str, float] | None = None) -> dict[str, NDArray[np.float64]]:
+        """Pose of every link frame in the model frame.
+
+        Joints missing from ``joint_values`` take their zero value; values are clipped to the
+        limits (so optimisers may overshoot safely); unknown joint names raise ``KeyError``.
+        """
+        values = self.zero_configuration()
+        for name, value in (joint_values or {}).items():
+            if name not in values:
+                movable = sorted(values)
+                raise KeyError(f"model {self.model_id!r}: no movable joint {name!r} (has {movable})")
+            values[name] = float(value)
+        poses = {self.root_link: np.eye(4)}
+        for j in self._order:  # type: ignore[attr-defined]
+            poses[j.child] = poses[j.parent] @ j.transform(values.get(j.name, 0.0))
+        return poses
+
+    def posed_link_meshes(self, joint_values: Mapping[str, float] | None = None) -> dict[str, trimesh.Trimesh]:
+        """Copies of the link meshes moved into the model frame at ``joint_values``."""
+        poses = self.link_poses(joint_values)
+        out = {}
+        for lk in self.links:
+            m = lk.mesh.copy()
+            m.apply_transform(poses[lk.name])
+            out[lk.name] = m
+        return out
+
+    def mesh(self, joint_values: Mapping[str, float] | None = None) -> trimesh.Trimesh:
+        """Whole-object mesh (links concatenated, not unioned) in the model frame."""
+        meshes = [m for m in self.posed_link_meshes(joint_values).values() if len(m.faces)]
+        if not meshes:
+            return trimesh.Trimesh()
+        return trimesh.util.concatenate(meshes)
+
+    def surface_motion(self, link: str, joint_values: Mapping[str, float] | None = None) -> NDArray[np.float64]:
+        """Transform moving things attached to ``link`` from the closed to the given configuration.
+
+        Support surfaces are stored at the closed configuration; a drawer's surface at joint values
+        ``q`` is ``surface_motion(drawer, q) @ point``.
+        """
+        zero = self.link_poses()[link]
+        return self.link_poses(joint_values)[link] @ invert_rigid(zero)
+
+    # ------------------------------------------------------------------ variants
+    def with_features(self, features: ModelFeatures) -> CadModel:
+        return dataclasses.replace(self, features=features)
+
+    def scaled(self, factors: ArrayLike | float) -> CadModel:
+        """A copy scaled by ``diag(factors)`` about the model origin (bottom centre stays put).
+
+        Uniform factors give the paper's scaled candidates; per-axis factors fit a target box.
+        Link frames stay rigid: each link's geometry absorbs the affine map
+        ``inv(P'_i) S P_i`` where ``P_i``/``P'_i`` are its closed-configuration poses before/after.
+        """
+        s = np.broadcast_to(np.asarray(factors, dtype=np.float64), (3,)).copy()
+        if np.any(~np.isfinite(s)) or np.any(s <= 0.0):
+            raise ValueError(f"scale factors must be positive and finite, got {s.tolist()}")
+        scale = np.diag(np.append(s, 1.0))
+        old = self.link_poses()
+        new = {self.root_link: np.eye(4)}
+        joints = []
+        for j in self._order:  # type: ignore[attr-defined]
+            frame = old[j.parent] @ j.origin  # joint frame in the model frame, closed config
+            frame_new = frame.copy()
+            frame_new[:3, 3] = s * frame[:3, 3]
+            axis_world = s * (frame[:3, :3] @ j.axis)
+            stretch = float(np.linalg.norm(axis_world))
+            axis = frame[:3, :3].T @ (axis_world / stretch)
+            lower, upper = (j.lower * stretch, j.upper * stretch) if j.type == "prismatic" else (j.lower, j.upper)
+            nj = Joint(
+                name=j.name,
+                type=j.type,
+                parent=j.parent,
+                child=j.child,
+                origin=invert_rigid(new[j.parent]) @ frame_new,
+                axis=axis,
+                lower=lower,
+                upper=upper,
+            )
+            joints.append(nj)
+            new[j.child] = new[j.parent] @ nj.transform(nj.zero_value)
+        links = []
+        for lk in self.links:
+            m = lk.mesh.copy()
+            m.apply_transform(invert_rigid(new[lk.name]) @ scale @ old[lk.name])
+            links.append(Link(name=lk.name, mesh=m, color=lk.color))
+        order_index = {j.name: i for i, j in enumerate(self.joints)}
+        joints.sort(key=lambda jt: order_index[jt.name])
+        return CadModel(
+            class_name=self.class_name,
+            model_id=self.model_id,
+            links=tuple(links),
+            joints=tuple(joints),
+            features=self.features.scaled(s),
+            params=self.params,
+            source=self.source,
+        )

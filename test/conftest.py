@@ -1,0 +1,18 @@
+"""Test-wide settings: DDS stays on loopback, on a domain of the test run's own."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+# Set before any rclpy import: these machines allow loopback traffic only.
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))
+if not os.environ.get("AMENT_PREFIX_PATH") and (Path(sys.prefix) / "share" / "ament_index").is_dir():
+    os.environ["AMENT_PREFIX_PATH"] = sys.prefix
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+
+# Shared test helpers (test/testsupport) import as `testsupport.*` under --import-mode=importlib.
+sys.path.insert(0, str(Path(__file__).resolve().parent))
