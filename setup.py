@@ -45,6 +45,7 @@ setup(
     entry_points={
         "console_scripts": [
             "scene-recon = scene_recon.cli:main",
+            "rgbd_player = ros_nodes.rgbd_player:main",
         ],
     },
 )

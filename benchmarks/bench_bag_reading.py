@@ -20,11 +20,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.common import best_of, write_result  # noqa: E402
-from panoptic_mapping.dataio import CameraIntrinsics  # noqa: E402
-from panoptic_mapping.dataio.bag import RosbagLoader  # noqa: E402
-from panoptic_mapping.dataio.bag_writer import RGBDBagWriter  # noqa: E402
-from panoptic_mapping.dataio.transforms import make_transform  # noqa: E402
+from benchmarks.common import best_of, write_result
+from panoptic_mapping.dataio import CameraIntrinsics
+from panoptic_mapping.dataio.bag import RosbagLoader
+from panoptic_mapping.dataio.bag_writer import RGBDBagWriter
+from panoptic_mapping.dataio.transforms import make_transform
 
 
 def make_bag(path: Path, storage: str, n: int, width: int = 640, height: int = 480) -> None:

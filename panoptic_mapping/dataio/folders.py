@@ -105,7 +105,7 @@ class _FolderLoader(abc.ABC):
     def _entries(self) -> list[tuple[int, Path, Path, np.ndarray | None]]:
         """(stamp_ns, color path, depth path, camera-to-world pose or None) for every frame."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - intentionally empty: folders hold no open handle
         """Nothing to release; present so every loader can be used the same way."""
 
     def __enter__(self):

@@ -73,7 +73,7 @@ def matrix_to_quat(r: np.ndarray) -> np.ndarray:
                  (s[:, 1, 0] - s[:, 0, 1]) / t], axis=1)
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     q[q[:, 3] < 0] *= -1
-    return q.reshape(r.shape[:-2] + (4,))
+    return q.reshape((*r.shape[:-2], 4))
 
 
 def make_transform(translation: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:

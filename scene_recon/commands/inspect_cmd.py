@@ -56,7 +56,8 @@ def format_summary(info: dict) -> str:
         + f", {info['duration_s']:.2f} s, {info['frame_rate_hz']:.2f} Hz"
     )
     where = f" in '{info['map_frame']}' from '{info['camera_frame']}'" if "map_frame" in info else ""
-    lines.append(f"poses: {info['posed_frames']}/{info['frames']} frames posed ({100 * info['pose_coverage']:.1f}%){where}")
+    coverage = 100 * info["pose_coverage"]
+    lines.append(f"poses: {info['posed_frames']}/{info['frames']} frames posed ({coverage:.1f}%){where}")
     if info.get("tf_frames"):
         lines.append(f"tf frames: {', '.join(info['tf_frames'])}")
     skipped = {k: v for k, v in info.get("skipped", {}).items() if v}

@@ -7,13 +7,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from testsupport.rawbag import RawBag, camera_info, image, tf_message
 
 from panoptic_mapping.dataio import CameraIntrinsics, DataInputConfig, DatasetError
 from panoptic_mapping.dataio.bag import RosbagLoader
 from panoptic_mapping.dataio.bag_writer import T_LINK_OPTICAL, RGBDBagWriter
 from panoptic_mapping.dataio.registry import detect_format, open_dataset
 from panoptic_mapping.dataio.transforms import make_transform, quat_to_matrix
-from testsupport.rawbag import RawBag, camera_info, image, tf_message
 
 K = (300.0, 310.0, 31.5, 23.5)
 W, H = 64, 48
@@ -135,7 +135,7 @@ def test_multi_hop_tf_chain_with_interpolation(tmp_path, storage):
     with open_dataset(bag.write(tmp_path / "chain", storage)) as loader:
         frames = list(loader)
     assert len(frames) == 5
-    for f, t in zip(frames, stamps):
+    for f, t in zip(frames, stamps, strict=False):
         ts = (t - T0) * 1e-9
         # linear translation + yaw interpolation of each edge equals the closed form here because each
         # edge's yaw and translation are linear in time
@@ -184,9 +184,8 @@ def test_truncated_bag_gives_clear_error(tmp_path):
     data = mcap.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) // 2])
-    with pytest.raises(DatasetError, match=r"truncated|corrupt|cannot open"):
-        with RosbagLoader(cut) as loader:
-            list(loader)
+    with pytest.raises(DatasetError, match=r"truncated|corrupt|cannot open"), RosbagLoader(cut) as loader:
+        list(loader)
     garbage = tmp_path / "garbage.mcap"
     garbage.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 100)
     with pytest.raises(DatasetError):

@@ -90,7 +90,7 @@ def test_seven_scenes_folder_with_sequences(tmp_path):
     with open_dataset(root) as loader:
         frames = list(loader)
     assert len(frames) == 4
-    for f, pose in zip(frames, poses):
+    for f, pose in zip(frames, poses, strict=False):
         np.testing.assert_allclose(f.pose, pose, atol=1e-12)
         assert f.depth[0, 0] == 0 and f.invalid_depth_pixels == 0
         assert 0.5 <= f.depth[1, 1] <= 4.0

@@ -9,10 +9,10 @@ import time
 import numpy as np
 import rclpy
 from rclpy.node import Node
+from scene_recon_interfaces.srv import SegmentImage
 from tf2_msgs.msg import TFMessage
 
 from ros_nodes.conversions import image_to_labels, rgb_to_image, transform_to_matrix
-from scene_recon_interfaces.srv import SegmentImage
 
 
 def main() -> int:
@@ -40,7 +40,7 @@ def main() -> int:
         out = {
             "success": response.success,
             "message": response.message,
-            "label_counts": {int(k): int(v) for k, v in zip(*np.unique(labels, return_counts=True))},
+            "label_counts": {int(k): int(v) for k, v in zip(*np.unique(labels, return_counts=True), strict=False)},
             "segments": [{"id": s.id, "class_name": s.class_name, "is_thing": s.is_thing,
                           "box": [s.box.x_offset, s.box.y_offset, s.box.width, s.box.height]}
                          for s in response.segments],

@@ -8,13 +8,13 @@ import sys
 import numpy as np
 import rclpy
 from rclpy.node import Node
+from scene_recon_interfaces.msg import SegmentInfo
+from scene_recon_interfaces.srv import SegmentImage
 from sensor_msgs.msg import RegionOfInterest
 from tf2_msgs.msg import TFMessage
 
 from panoptic_mapping.dataio.transforms import make_transform
 from ros_nodes.conversions import image_to_rgb, labels_to_image, make_transform_stamped
-from scene_recon_interfaces.msg import SegmentInfo
-from scene_recon_interfaces.srv import SegmentImage
 
 #: The transform the peer publishes; the test checks it arrives intact.
 T_MAP_CAMERA = make_transform([1.0, 2.0, 3.0], [0.0, 0.0, np.sin(0.25), np.cos(0.25)])

@@ -1,0 +1,141 @@
+"""`rgbd_player`: publish an RGB-D recording (bag or frame folder) as live camera topics + TF.
+
+`ros2 bag play` needs rosbag2, which the PyPI ROS 2 wheels lack; this node reads any source the
+data layer reads (rosbag2 .mcap/.db3, TUM, 7-Scenes), so the mapper can be driven from a file
+exactly as from a live camera. Frames are published at their recorded rate (scaled by `rate`)
+with their original stamps; the camera pose goes out as `map_frame -> camera_frame` on /tf.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import rclpy
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+from tf2_msgs.msg import TFMessage
+
+from panoptic_mapping.dataio import DataInputConfig, DatasetError
+from panoptic_mapping.dataio.registry import open_dataset
+from ros_nodes.conversions import (
+    depth_to_image,
+    intrinsics_to_camera_info,
+    labels_to_image,
+    make_transform_stamped,
+    rgb_to_image,
+)
+from ros_nodes.qos import SENSOR_RELIABLE, TF_DYNAMIC
+from scene_recon.ros_env import ensure_ros_environment
+
+
+class RGBDPlayer(Node):
+    def __init__(self) -> None:
+        super().__init__("rgbd_player")
+        p = self.declare_parameter
+        self.path = p("source", "").value
+        self.rate = float(p("rate", 1.0).value)
+        self.loop = bool(p("loop", False).value)
+        self.map_frame = p("map_frame", "map").value
+        self.camera_frame = p("camera_frame", "camera_color_optical_frame").value
+        self.labels_topic_in = p("labels_topic_in", "").value
+        # Start only once this many subscribers listen to the color topic (0: at once), so that no
+        # frame is lost to DDS discovery when a mapper is launched beside the player.
+        self.wait_for_subscribers = int(p("wait_for_subscribers", 0).value)
+        self.wait_timeout_s = float(p("wait_timeout_s", 30.0).value)
+        prefix = p("topic_prefix", "/camera").value.rstrip("/")
+        self.pub_color = self.create_publisher(Image, f"{prefix}/color/image_raw", SENSOR_RELIABLE)
+        self.pub_depth = self.create_publisher(Image, f"{prefix}/depth/image_rect_raw", SENSOR_RELIABLE)
+        self.pub_info = self.create_publisher(CameraInfo, f"{prefix}/color/camera_info", SENSOR_RELIABLE)
+        self.pub_labels = self.create_publisher(Image, "/ground_truth/panoptic_labels", SENSOR_RELIABLE)
+        self.pub_tf = self.create_publisher(TFMessage, "/tf", TF_DYNAMIC)
+        self.published = 0
+        self.finished = False
+        self._frames = None
+        self._t0_wall = self._t0_data = None
+        self._pending = None
+        if not self.path:
+            self.get_logger().error("parameter 'source' is empty: give a bag or frame folder to play")
+            self.finished = True
+            return
+        self._open()
+        self._created = time.monotonic()
+        self.create_timer(0.002, self._tick)
+
+    def _open(self) -> None:
+        cfg = DataInputConfig(require_pose=False)
+        cfg.topics.labels = self.labels_topic_in
+        try:
+            self._loader = open_dataset(self.path, cfg)
+        except DatasetError as exc:
+            self.get_logger().error(f"cannot play {self.path}: {exc}")
+            self.finished = True
+            return
+        self._frames = iter(self._loader)
+        self._t0_wall = self._t0_data = None
+
+    def _tick(self) -> None:
+        if self.finished or self._frames is None:
+            return
+        if self._t0_wall is None and self.pub_color.get_subscription_count() < self.wait_for_subscribers:
+            if time.monotonic() - self._created < self.wait_timeout_s:
+                return
+            self.get_logger().warning(f"no {self.wait_for_subscribers} subscriber(s) after "
+                                      f"{self.wait_timeout_s:.0f} s; playing anyway")
+            self.wait_for_subscribers = 0
+        if self._pending is None:
+            try:
+                self._pending = next(self._frames)
+            except StopIteration:
+                skipped = {k: v for k, v in self._loader.skips.as_dict().items() if v}
+                self.get_logger().info(f"played {self.published} frames; skipped: {skipped or 'none'}")
+                if self.loop:
+                    self._open()
+                    return
+                self.finished = True
+                return
+            except DatasetError as exc:
+                self.get_logger().error(f"stopped playing: {exc}")
+                self.finished = True
+                return
+        f = self._pending
+        now = time.monotonic()
+        if self._t0_wall is None:
+            self._t0_wall, self._t0_data = now, f.timestamp_ns
+        due = self._t0_wall + (f.timestamp_ns - self._t0_data) * 1e-9 / max(self.rate, 1e-6)
+        if now < due:
+            return
+        stamp = f.timestamp_ns
+        if f.pose is not None:
+            self.pub_tf.publish(TFMessage(transforms=[
+                make_transform_stamped(f.pose, self.map_frame, self.camera_frame, stamp)]))
+        self.pub_info.publish(intrinsics_to_camera_info(f.intrinsics, stamp, self.camera_frame))
+        self.pub_color.publish(rgb_to_image(f.color, stamp, self.camera_frame))
+        self.pub_depth.publish(depth_to_image(f.depth, stamp, self.camera_frame))
+        if "labels" in f.extras:
+            self.pub_labels.publish(labels_to_image(f.extras["labels"], stamp, self.camera_frame))
+        self.published += 1
+        self._pending = None
+
+
+def main(args: list[str] | None = None) -> int:
+    ensure_ros_environment()
+    rclpy.init(args=args)
+    node = RGBDPlayer()
+    try:
+        while rclpy.ok() and not node.finished:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        # let reliable subscribers drain the last messages before the publishers go away
+        end = time.monotonic() + 0.5
+        while rclpy.ok() and time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.05)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
