@@ -36,13 +36,16 @@ def room_shell(room: RoomBounds, thickness: float = 0.05) -> list[RenderItem]:
     cx, cy = room.center
     sx, sy = 2 * room.half_extents
     h, t = room.height, thickness
+    wall_a = Appearance((0.8, 0.78, 0.7), "noise", scale_m=0.6)
+    wall_b = Appearance((0.7, 0.75, 0.8), "stripes", scale_m=0.3, contrast=0.2)
+    slab = (sx + 2 * t, sy + 2 * t, t)
     specs = [
-        ("floor", (sx + 2 * t, sy + 2 * t, t), (cx, cy, -t / 2), Appearance((0.55, 0.42, 0.3), "grain", scale_m=0.5)),
-        ("ceiling", (sx + 2 * t, sy + 2 * t, t), (cx, cy, h + t / 2), Appearance((0.85, 0.85, 0.82), "noise", detail=0.05)),
-        ("wall_x_min", (t, sy, h), (room.x_min - t / 2, cy, h / 2), Appearance((0.8, 0.78, 0.7), "noise", scale_m=0.6)),
-        ("wall_x_max", (t, sy, h), (room.x_max + t / 2, cy, h / 2), Appearance((0.8, 0.78, 0.7), "noise", scale_m=0.6)),
-        ("wall_y_min", (sx, t, h), (cx, room.y_min - t / 2, h / 2), Appearance((0.7, 0.75, 0.8), "stripes", scale_m=0.3, contrast=0.2)),
-        ("wall_y_max", (sx, t, h), (cx, room.y_max + t / 2, h / 2), Appearance((0.7, 0.75, 0.8), "stripes", scale_m=0.3, contrast=0.2)),
+        ("floor", slab, (cx, cy, -t / 2), Appearance((0.55, 0.42, 0.3), "grain", scale_m=0.5)),
+        ("ceiling", slab, (cx, cy, h + t / 2), Appearance((0.85, 0.85, 0.82), "noise", detail=0.05)),
+        ("wall_x_min", (t, sy, h), (room.x_min - t / 2, cy, h / 2), wall_a),
+        ("wall_x_max", (t, sy, h), (room.x_max + t / 2, cy, h / 2), wall_a),
+        ("wall_y_min", (sx, t, h), (cx, room.y_min - t / 2, h / 2), wall_b),
+        ("wall_y_max", (sx, t, h), (cx, room.y_max + t / 2, h / 2), wall_b),
     ]
     items = []
     for label, (name, extents, center, app) in enumerate(specs, start=1):
