@@ -286,7 +286,7 @@ def _link_mesh(lb: LinkBuilder, offset: NDArray[np.float64], class_name: str) ->
     mesh = trimesh.Trimesh(
         vertices=np.asarray(out.vert_properties, dtype=np.float64)[:, :3],
         faces=np.asarray(out.tri_verts, dtype=np.int64),
-        process=True,
+        process=False,  # manifold's output is already indexed and 2-manifold; merging could break it
     )
     if not (mesh.is_watertight and mesh.volume > 0.0):
         raise RuntimeError(f"{class_name}: link {lb.name!r} mesh is not a closed positive-volume solid")
