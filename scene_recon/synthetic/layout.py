@@ -244,7 +244,9 @@ class RoomLayout:
                     add_surfaces(obj)
                     placed_furniture += 1
                     if cls == "table":
-                        self._chairs(obj, rng, items, taken, fits, new_name, add_surfaces)
+                        budget = n_furniture - placed_furniture - (len(plan) - plan.index(cls) - 1 > 0)
+                        placed_furniture += self._chairs(obj, rng, items, taken, fits, new_name, add_surfaces,
+                                                         max(budget, 0))
                     break
 
         # small objects on surfaces (or the floor)
@@ -274,9 +276,9 @@ class RoomLayout:
                 add_surfaces(obj)  # something may be stacked on it later
         return items, (width, depth, height)
 
-    def _chairs(self, table: PlacedObject, rng, items, taken, fits, new_name, add_surfaces) -> int:
-        """Place up to 4 chairs around `table`, each facing it; returns how many were placed."""
-        n = int(rng.integers(0, 5))
+    def _chairs(self, table: PlacedObject, rng, items, taken, fits, new_name, add_surfaces, budget: int) -> int:
+        """Place up to min(4, budget) chairs around `table`, each facing it; returns how many were placed."""
+        n = min(int(rng.integers(0, 5)), budget)
         placed = 0
         tx, ty = table.pose[:2, 3]
         tyaw = np.arctan2(table.pose[1, 0], table.pose[0, 0])
