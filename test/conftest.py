@@ -14,5 +14,6 @@ if not os.environ.get("AMENT_PREFIX_PATH") and (Path(sys.prefix) / "share" / "am
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
-# Shared test helpers (test/testsupport) import as `testsupport.*` under --import-mode=importlib.
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+# Shared test helpers (test/support/testsupport) import as `testsupport.*` under --import-mode=importlib.
+# Only test/support goes on sys.path: test/ itself would shadow the real packages with its mirrors.
+sys.path.insert(0, str(Path(__file__).resolve().parent / "support"))

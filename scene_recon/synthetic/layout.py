@@ -21,7 +21,8 @@ import trimesh
 from shapely.geometry import Polygon, box as shapely_box
 from shapely.prepared import prep
 
-from cad_replacement.cad import CadModel, build_model
+from cad_replacement.cad.model import CadModel
+from cad_replacement.cad.procedural import build_model
 
 
 @dataclass

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from cad_replacement.cad import build_model
+from cad_replacement.cad.procedural import build_model
 from cad_replacement.cad.classes import load_class_table
 from cad_replacement.kinematic_tree import KinematicTree, TreeJoint, TreeLink
 from scene_recon.synthetic.items import Appearance, RenderItem
