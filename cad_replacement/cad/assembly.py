@@ -303,9 +303,7 @@ def _cross_section(p: Primitive, axis: int) -> float:
     return 2.0 * p.radius * p.length
 
 
-def _analytic_planes(
-    parts: Sequence[Primitive], lo: NDArray[np.float64], hi: NDArray[np.float64]
-) -> list[Plane]:
+def _analytic_planes(parts: Sequence[Primitive], lo: NDArray[np.float64], hi: NDArray[np.float64]) -> list[Plane]:
     """Sides of the bounding box that the model's surface really covers.
 
     For each of the six box faces, sum the areas of part faces lying on it (box faces, cylinder

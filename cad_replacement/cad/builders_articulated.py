@@ -166,7 +166,15 @@ def _drawer_stack(
     h = (z1 - z0 - (rows - 1) * FRONT_GAP) / rows
     for r in range(rows):
         za = z0 + r * (h + FRONT_GAP)
-        drawer(asm, "body", f"{prefix}{first_index + r}", x_front=x_front, front=(y0, y1, za, za + h), cavity=cavity, style=style)
+        drawer(
+            asm,
+            "body",
+            f"{prefix}{first_index + r}",
+            x_front=x_front,
+            front=(y0, y1, za, za + h),
+            cavity=cavity,
+            style=style,
+        )
     return first_index + rows
 
 
@@ -192,8 +200,21 @@ def build_fridge(p: Params) -> Assembly:
         shelf_levels(asm, body, c, n, 0.01, enclosed=True, front_inset=0.06)
 
     if layout == "single":
-        door_row(asm, "body", "door_", x_front=xf, y0=y0, y1=y1, z0=0.0, z1=h, count=1, style=style(h),
-                 single_side=side, outer_limit=FRIDGE_DOOR_LIMIT, handle_z=0.6 * h)
+        door_row(
+            asm,
+            "body",
+            "door_",
+            x_front=xf,
+            y0=y0,
+            y1=y1,
+            z0=0.0,
+            z1=h,
+            count=1,
+            style=style(h),
+            single_side=side,
+            outer_limit=FRIDGE_DOOR_LIMIT,
+            handle_z=0.6 * h,
+        )
         compartment(cav, shelves)
     elif layout in ("top_freezer", "bottom_freezer"):
         z_div = h * (1.0 - ff) if layout == "top_freezer" else h * ff
@@ -201,20 +222,72 @@ def build_fridge(p: Params) -> Assembly:
         lower = Cavity(cav.x0, cav.x1, cav.y0, cav.y1, cav.z0, z_div - 0.5 * wall)
         upper = Cavity(cav.x0, cav.x1, cav.y0, cav.y1, z_div + 0.5 * wall, cav.z1)
         zl1, zu0 = z_div - 0.5 * FRONT_GAP, z_div + 0.5 * FRONT_GAP
-        door_row(asm, "body", "door_lower_", x_front=xf, y0=y0, y1=y1, z0=0.0, z1=zl1, count=1,
-                 style=style(zl1), single_side=side, outer_limit=FRIDGE_DOOR_LIMIT, handle_z=zl1 - 0.3 * zl1)
-        door_row(asm, "body", "door_upper_", x_front=xf, y0=y0, y1=y1, z0=zu0, z1=h, count=1,
-                 style=style(h - zu0), single_side=side, outer_limit=FRIDGE_DOOR_LIMIT, handle_z=zu0 + 0.3 * (h - zu0))
+        door_row(
+            asm,
+            "body",
+            "door_lower_",
+            x_front=xf,
+            y0=y0,
+            y1=y1,
+            z0=0.0,
+            z1=zl1,
+            count=1,
+            style=style(zl1),
+            single_side=side,
+            outer_limit=FRIDGE_DOOR_LIMIT,
+            handle_z=zl1 - 0.3 * zl1,
+        )
+        door_row(
+            asm,
+            "body",
+            "door_upper_",
+            x_front=xf,
+            y0=y0,
+            y1=y1,
+            z0=zu0,
+            z1=h,
+            count=1,
+            style=style(h - zu0),
+            single_side=side,
+            outer_limit=FRIDGE_DOOR_LIMIT,
+            handle_z=zu0 + 0.3 * (h - zu0),
+        )
         main, freezer = (lower, upper) if layout == "top_freezer" else (upper, lower)
         compartment(main, shelves)
         compartment(freezer, 1)
     else:  # side by side: freezer on the left (+y)
         y_div = y1 - (0.35 + 0.3 * ff) * w
         body.box((cav.x0 - FUSE, y_div - 0.5 * wall, cav.z0 - FUSE), (cav.x1, y_div + 0.5 * wall, cav.z1 + FUSE))
-        door_row(asm, "body", "door_left_", x_front=xf, y0=y_div + 0.5 * FRONT_GAP, y1=y1, z0=0.0, z1=h, count=1,
-                 style=style(h), single_side="left", outer_limit=FRIDGE_DOOR_LIMIT, handle_z=0.55 * h)
-        door_row(asm, "body", "door_right_", x_front=xf, y0=y0, y1=y_div - 0.5 * FRONT_GAP, z0=0.0, z1=h, count=1,
-                 style=style(h), single_side="right", outer_limit=FRIDGE_DOOR_LIMIT, handle_z=0.55 * h)
+        door_row(
+            asm,
+            "body",
+            "door_left_",
+            x_front=xf,
+            y0=y_div + 0.5 * FRONT_GAP,
+            y1=y1,
+            z0=0.0,
+            z1=h,
+            count=1,
+            style=style(h),
+            single_side="left",
+            outer_limit=FRIDGE_DOOR_LIMIT,
+            handle_z=0.55 * h,
+        )
+        door_row(
+            asm,
+            "body",
+            "door_right_",
+            x_front=xf,
+            y0=y0,
+            y1=y_div - 0.5 * FRONT_GAP,
+            z0=0.0,
+            z1=h,
+            count=1,
+            style=style(h),
+            single_side="right",
+            outer_limit=FRIDGE_DOOR_LIMIT,
+            handle_z=0.55 * h,
+        )
         compartment(Cavity(cav.x0, cav.x1, y_div + 0.5 * wall, cav.y1, cav.z0, cav.z1), shelves + 1)
         compartment(Cavity(cav.x0, cav.x1, cav.y0, y_div - 0.5 * wall, cav.z0, cav.z1), shelves)
     return asm
@@ -237,18 +310,34 @@ def build_microwave(p: Params) -> Assembly:
     if hp > 0.0:  # knobs stay within the handle's protrusion so the overall depth is unchanged
         for i in range(3):
             zc = feet + (h - feet) * (0.3 + 0.2 * i)
-            body.cylinder((xf + dt + 0.25 * hp - 0.5 * FUSE, y0 + 0.5 * pw, zc), min(0.015, 0.25 * pw), 0.5 * hp + FUSE, "x")
+            body.cylinder(
+                (xf + dt + 0.25 * hp - 0.5 * FUSE, y0 + 0.5 * pw, zc), min(0.015, 0.25 * pw), 0.5 * hp + FUSE, "x"
+            )
     if feet:
         legs(body, x0 + 0.02, xf - 0.02, y0 + 0.02, y1 - 0.02, 0.0, feet + FUSE, 0.02, True)
     inner = Cavity(cav.x0, cav.x1, y0 + pw, cav.y1, cav.z0, cav.z1)
     turntable_r = 0.4 * min(inner.x1 - inner.x0, inner.y1 - inner.y0)
     tc = (0.5 * (inner.x0 + inner.x1), 0.5 * (inner.y0 + inner.y1))
     body.cylinder((tc[0], tc[1], inner.z0 + 0.003 - 0.5 * FUSE), turntable_r, 0.006 + FUSE)
-    asm.support(inner.z0, rectangle(inner.x0, inner.x1, inner.y0, inner.y1), clearance=inner.z1 - inner.z0, enclosed=True)
+    asm.support(
+        inner.z0, rectangle(inner.x0, inner.x1, inner.y0, inner.y1), clearance=inner.z1 - inner.z0, enclosed=True
+    )
     asm.support(h, rectangle(x0, xf, y0, y1))
     style = FrontStyle(dt, hp, DARK, STEEL, handle_length=0.6 * (h - feet))
-    door_row(asm, "body", "door_", x_front=xf, y0=y0 + pw + FRONT_GAP, y1=y1, z0=feet, z1=h, count=1, style=style,
-             single_side="left", outer_limit=MICROWAVE_DOOR_LIMIT)
+    door_row(
+        asm,
+        "body",
+        "door_",
+        x_front=xf,
+        y0=y0 + pw + FRONT_GAP,
+        y1=y1,
+        z0=feet,
+        z1=h,
+        count=1,
+        style=style,
+        single_side="left",
+        outer_limit=MICROWAVE_DOOR_LIMIT,
+    )
     return asm
 
 
@@ -279,8 +368,21 @@ def build_cabinet(p: Params) -> Assembly:
     columns = 1 if w < 0.9 else 2
 
     def doors(z0: float, z1: float, c: Cavity) -> None:
-        gaps = door_row(asm, "body", "door_", x_front=xf, y0=y0, y1=y1, z0=z0, z1=z1, count=n_doors, style=style,
-                        single_side=_side(p), outer_limit=FURNITURE_DOOR_LIMIT, handle_z=z1 - 0.1)
+        gaps = door_row(
+            asm,
+            "body",
+            "door_",
+            x_front=xf,
+            y0=y0,
+            y1=y1,
+            z0=z0,
+            z1=z1,
+            count=n_doors,
+            style=style,
+            single_side=_side(p),
+            outer_limit=FURNITURE_DOOR_LIMIT,
+            handle_z=z1 - 0.1,
+        )
         _mullions(body, gaps, xf, c.z0, c.z1)
         shelf_levels(asm, body, c, int(p["shelves"]), wall, enclosed=True, front_inset=0.02)
 
@@ -291,10 +393,22 @@ def build_cabinet(p: Params) -> Assembly:
         body.box((c.x0 - FUSE, -0.5 * wall, c.z0 - FUSE), (c.x1, 0.5 * wall, c.z1 + FUSE))
         left = Cavity(c.x0, c.x1, 0.5 * wall, c.y1, c.z0, c.z1)
         right = Cavity(c.x0, c.x1, c.y0, -0.5 * wall, c.z0, c.z1)
-        nxt = _drawer_stack(asm, "drawer_", x_front=xf, y0=0.5 * FRONT_GAP, y1=y1, z0=z0, z1=z1, rows=rows,
-                            cavity=left, style=style)
-        _drawer_stack(asm, "drawer_", x_front=xf, y0=y0, y1=-0.5 * FRONT_GAP, z0=z0, z1=z1, rows=rows, cavity=right,
-                      style=style, first_index=nxt)
+        nxt = _drawer_stack(
+            asm, "drawer_", x_front=xf, y0=0.5 * FRONT_GAP, y1=y1, z0=z0, z1=z1, rows=rows, cavity=left, style=style
+        )
+        _drawer_stack(
+            asm,
+            "drawer_",
+            x_front=xf,
+            y0=y0,
+            y1=-0.5 * FRONT_GAP,
+            z0=z0,
+            z1=z1,
+            rows=rows,
+            cavity=right,
+            style=style,
+            first_index=nxt,
+        )
 
     if layout == "doors":
         doors(zb, h, cav)
@@ -347,8 +461,15 @@ def build_oven(p: Params) -> Assembly:
         za = 0.02
         z_door0 = za + dh + dt + 2 * FRONT_GAP
         _board_z(body, cav, z_door0 - 0.5 * wall, wall)
-        drawer(asm, "body", "drawer_0", x_front=xf, front=(y0, y1, za, za + dh),
-               cavity=Cavity(cav.x0, cav.x1, cav.y0, cav.y1, cav.z0, z_door0 - wall), style=style)
+        drawer(
+            asm,
+            "body",
+            "drawer_0",
+            x_front=xf,
+            front=(y0, y1, za, za + dh),
+            cavity=Cavity(cav.x0, cav.x1, cav.y0, cav.y1, cav.z0, z_door0 - wall),
+            style=style,
+        )
     else:
         body.box((cav.x0 - FUSE, cav.y0 - FUSE, cav.z0 - FUSE), (cav.x1, cav.y1 + FUSE, z_door0))
     oven = Cavity(cav.x0, cav.x1, cav.y0, cav.y1, max(cav.z0, z_door0), z_panel)
@@ -356,8 +477,9 @@ def build_oven(p: Params) -> Assembly:
         _board_z(body, cav, z_panel - 0.5 * wall, wall)
         oven = Cavity(oven.x0, oven.x1, oven.y0, oven.y1, oven.z0, z_panel - wall)
     shelf_levels(asm, body, oven, int(p["racks"]), 0.008, enclosed=True, front_inset=0.03)
-    drop_door(asm, "body", "door", x_front=xf, y0=y0, y1=y1, z0=z_door0, z1=z_panel - FRONT_GAP, style=style,
-              window=True)
+    drop_door(
+        asm, "body", "door", x_front=xf, y0=y0, y1=y1, z0=z_door0, z1=z_panel - FRONT_GAP, style=style, window=True
+    )
     return asm
 
 
@@ -386,10 +508,23 @@ def build_dishwasher(p: Params) -> Assembly:
         ry0, ry1 = inner.y0 + TRAY_CLEARANCE, inner.y1 - TRAY_CLEARANCE
         tray(link, rx0, rx1, ry0, ry1, za, zb, 0.008)
         link.box((rx1 - 0.008, ry0, za), (rx1, ry1, zb))
-        asm.joint(f"{name}_slide", "prismatic", "body", name, anchor=(rx1, 0.0, za), axis=(1.0, 0.0, 0.0),
-                  lower=0.0, upper=0.8 * (rx1 - rx0))
-        asm.support(za + 0.008, rectangle(rx0 + 0.008, rx1 - 0.008, ry0 + 0.008, ry1 - 0.008),
-                    clearance=slot - 0.008 - TRAY_CLEARANCE, link=name, enclosed=True)
+        asm.joint(
+            f"{name}_slide",
+            "prismatic",
+            "body",
+            name,
+            anchor=(rx1, 0.0, za),
+            axis=(1.0, 0.0, 0.0),
+            lower=0.0,
+            upper=0.8 * (rx1 - rx0),
+        )
+        asm.support(
+            za + 0.008,
+            rectangle(rx0 + 0.008, rx1 - 0.008, ry0 + 0.008, ry1 - 0.008),
+            clearance=slot - 0.008 - TRAY_CLEARANCE,
+            link=name,
+            enclosed=True,
+        )
     return asm
 
 
@@ -411,23 +546,54 @@ def build_wardrobe(p: Params) -> Assembly:
         z_div = zb + n_drawers * DRAWER_ROW
         _board_z(body, cav, z_div, wall)
         low = Cavity(cav.x0, cav.x1, cav.y0, cav.y1, cav.z0, z_div - 0.5 * wall)
-        _drawer_stack(asm, "drawer_", x_front=xf, y0=y0, y1=y1, z0=zb, z1=z_div - 0.5 * FRONT_GAP, rows=n_drawers,
-                      cavity=low, style=style)
+        _drawer_stack(
+            asm,
+            "drawer_",
+            x_front=xf,
+            y0=y0,
+            y1=y1,
+            z0=zb,
+            z1=z_div - 0.5 * FRONT_GAP,
+            rows=n_drawers,
+            cavity=low,
+            style=style,
+        )
         z_doors = z_div + 0.5 * FRONT_GAP
         hang = Cavity(cav.x0, cav.x1, cav.y0, cav.y1, z_div + 0.5 * wall, cav.z1)
     n_doors = _door_count(w, int(p["doors"]))
     p["doors"] = n_doors
-    gaps = door_row(asm, "body", "door_", x_front=xf, y0=y0, y1=y1, z0=z_doors, z1=h, count=n_doors, style=style,
-                    single_side=_side(p), outer_limit=FURNITURE_DOOR_LIMIT, handle_z=z_doors + 0.5 * (h - z_doors))
+    gaps = door_row(
+        asm,
+        "body",
+        "door_",
+        x_front=xf,
+        y0=y0,
+        y1=y1,
+        z0=z_doors,
+        z1=h,
+        count=n_doors,
+        style=style,
+        single_side=_side(p),
+        outer_limit=FURNITURE_DOOR_LIMIT,
+        handle_z=z_doors + 0.5 * (h - z_doors),
+    )
     _mullions(body, gaps, xf, hang.z0, hang.z1)
     hat_z = h - min(_f(p, "hat_shelf"), 0.4 * (hang.z1 - hang.z0))
     _board_z(body, hang, hat_z, wall)
     rod_z = hat_z - 0.5 * wall - 0.06
     body.cylinder((0.5 * (hang.x0 + hang.x1), 0.0, rod_z), 0.0125, hang.y1 - hang.y0 + 2 * FUSE, "y")
-    asm.support(hang.z0, rectangle(hang.x0, hang.x1 - MULLION_DEPTH, hang.y0, hang.y1), clearance=rod_z - 0.0125 - hang.z0,
-                enclosed=True)
-    asm.support(hat_z + 0.5 * wall, rectangle(hang.x0, hang.x1 - MULLION_DEPTH, hang.y0, hang.y1),
-                clearance=hang.z1 - hat_z - 0.5 * wall, enclosed=True)
+    asm.support(
+        hang.z0,
+        rectangle(hang.x0, hang.x1 - MULLION_DEPTH, hang.y0, hang.y1),
+        clearance=rod_z - 0.0125 - hang.z0,
+        enclosed=True,
+    )
+    asm.support(
+        hat_z + 0.5 * wall,
+        rectangle(hang.x0, hang.x1 - MULLION_DEPTH, hang.y0, hang.y1),
+        clearance=hang.z1 - hat_z - 0.5 * wall,
+        enclosed=True,
+    )
     return asm
 
 

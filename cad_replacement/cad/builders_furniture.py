@@ -169,7 +169,10 @@ def build_desk(p: Params) -> Assembly:
         body.box((-0.5 * d, left_y - pt, 0.0), (0.5 * d, left_y, top_z + FUSE))
         body.box((-0.5 * d, right_y, 0.0), (0.5 * d, right_y + pt, top_z + FUSE))
         if p["modesty_panel"] == "yes":
-            body.box((-0.5 * d + 0.02, right_y + pt - FUSE, 0.45 * h), (-0.5 * d + 0.02 + pt, left_y - pt + FUSE, top_z + FUSE))
+            body.box(
+                (-0.5 * d + 0.02, right_y + pt - FUSE, 0.45 * h),
+                (-0.5 * d + 0.02 + pt, left_y - pt + FUSE, top_z + FUSE),
+            )
     return asm
 
 
@@ -206,7 +209,12 @@ def build_sofa(p: Params) -> Assembly:
     asm = Assembly("sofa")
     body = asm.link("body", FABRIC)
     w, d, h = _f(p, "width"), _f(p, "depth"), _f(p, "height")
-    sh, aw, ah, bt = _f(p, "seat_height"), min(_f(p, "arm_width"), 0.2 * w), _f(p, "arm_height"), _f(p, "back_thickness")
+    sh, aw, ah, bt = (
+        _f(p, "seat_height"),
+        min(_f(p, "arm_width"), 0.2 * w),
+        _f(p, "arm_height"),
+        _f(p, "back_thickness"),
+    )
     bt = min(bt, 0.4 * d)
     lh = _f(p, "leg_height") if p["base"] == "legs" else 0.0
     lh = min(lh, 0.4 * sh)

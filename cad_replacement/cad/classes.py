@@ -145,7 +145,12 @@ def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
             raise _fail(path, where, f"{flag} must be true/false, got {raw[flag]!r}")
     density = raw["density"]
     if density is not None:
-        if isinstance(density, bool) or not isinstance(density, (int, float)) or not math.isfinite(density) or density <= 0:
+        if (
+            isinstance(density, bool)
+            or not isinstance(density, (int, float))
+            or not math.isfinite(density)
+            or density <= 0
+        ):
             raise _fail(path, where, f"density must be a positive number or null, got {density!r}")
         density = float(density)
     if raw["category"] != "layout" and density is None:

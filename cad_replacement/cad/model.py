@@ -295,3 +295,31 @@ class CadModel:
             params=self.params,
             source=self.source,
         )
+
+    def reframed(self, transform: ArrayLike) -> CadModel:
+        """The same object expressed in a new model frame: ``p_new = transform @ p_old`` (rigid).
+
+        The root link's geometry and the origins of joints leaving the root absorb the transform;
+        other links keep their local geometry. Planes and support surfaces are not carried over
+        (only the bounding box is recomputed): recompute features afterwards.
+        """
+        g = np.asarray(transform, dtype=np.float64)
+        if not is_rigid(g):
+            raise ValueError("reframed() needs a rigid 4x4 transform")
+        links = []
+        for lk in self.links:
+            m = lk.mesh.copy()
+            if lk.name == self.root_link:
+                m.apply_transform(g)
+            links.append(Link(name=lk.name, mesh=m, color=lk.color))
+        joints = [dataclasses.replace(j, origin=g @ j.origin) if j.parent == self.root_link else j for j in self.joints]
+        draft = dataclasses.replace(self, links=tuple(links), joints=tuple(joints))
+        return draft.with_features(bounding_box_features(draft.mesh()))
+
+
+def bounding_box_features(mesh: trimesh.Trimesh) -> ModelFeatures:
+    """Box-only features (no planes/surfaces) of a mesh; a zero box for an empty mesh."""
+    if len(mesh.vertices) == 0:
+        return ModelFeatures(box_center=np.zeros(3), box_size=np.zeros(3))
+    lo, hi = mesh.bounds
+    return ModelFeatures(box_center=0.5 * (lo + hi), box_size=hi - lo)
