@@ -55,6 +55,10 @@ class DepthNoiseConfig:
     quantization: Quantization = "disparity"
     baseline_m: float = 0.075
     disparity_step_px: float = 0.125
+    #: Focal length (px) of the sensor's native resolution for disparity quantization; 0 = the
+    #: rendered camera's fx. Set it when rendering at a reduced resolution, where the image fx
+    #: would exaggerate the steps.
+    disparity_focal_px: float = 0.0
     quantization_step_m: float = 0.001
 
     #: Grazing-angle dropouts: probability ramps linearly from 0 at `grazing_start_deg` (angle
@@ -142,7 +146,8 @@ def apply_depth_noise(
 
     depth: (H, W) clean z-depth, 0 = no surface. incidence_cos: (H, W) cosine of the angle between
     surface normal and the reversed viewing ray (1 = head-on); without it the angle term and the
-    grazing dropouts are skipped. focal_px: focal length for disparity quantization (required then).
+    grazing dropouts are skipped. focal_px: the camera's focal length, used for disparity
+    quantization unless `config.disparity_focal_px` is set.
     """
     clean = np.asarray(depth, dtype=np.float32)
     if config.noise_free:
@@ -155,9 +160,10 @@ def apply_depth_noise(
         z = z + sigma * rng.standard_normal(z.shape, dtype=np.float32)
         z = np.where(valid & (z > 0), z, 0.0).astype(np.float32)
 
-    if config.quantization == "disparity" and focal_px is None:
-        raise ValueError("disparity quantization needs the focal length (focal_px)")
-    z = quantize_depth(z, config, focal_px or 1.0)
+    focal = config.disparity_focal_px if config.disparity_focal_px > 0 else focal_px
+    if config.quantization == "disparity" and focal is None:
+        raise ValueError("disparity quantization needs the focal length (focal_px or disparity_focal_px)")
+    z = quantize_depth(z, config, focal or 1.0)
 
     keep = np.ones(z.shape, dtype=np.float32)
     if config.grazing_dropout and incidence_cos is not None:

@@ -6,7 +6,7 @@ ceiling), anything outside the room box (outer wall faces, the top of the ceilin
 hidden labels; peeled rays are re-cast from just behind the skipped surface (a few layers, all
 vectorized). Surfaces are coloured by label (or by their rendered appearance) with simple shading,
 then the camera path is drawn with OpenCV: bright where visible, dim where occluded, with small view
-frustums, a start dot and an end square.
+frustums, a start dot, an end square and a thin grey footprint of the path on the floor.
 """
 
 from __future__ import annotations
@@ -53,6 +53,8 @@ class OverviewConfig:
     #: Draw a frustum every N frames (0 = none) and its size in metres.
     frustum_every: int = 30
     frustum_size_m: float = 0.3
+    #: Also draw the path's footprint on the floor (thin grey line).
+    draw_floor_shadow: bool = True
     #: Write label ids at the centre of each visible object smaller than `max_text_area` (fraction
     #: of the image; keeps the floor/walls unlabelled).
     draw_label_ids: bool = True
@@ -169,10 +171,18 @@ def _draw_path(image: np.ndarray, hits: RayHits, poses: np.ndarray, intr: Camera
     surface[inside] = np.where(d[inside] > 0, d[inside] * scale[inside], np.inf)
     visible = inside & (ray_len <= surface + 0.05)
     n = len(positions)
+    shift = 4  # sub-pixel precision for smooth anti-aliased lines
+    if cfg.draw_floor_shadow:
+        # The path's footprint on the floor: disambiguates where the (elevated) camera really was.
+        floor = positions * np.array([1.0, 1.0, 0.0])
+        fuv, fz = project(floor, intr, pose)
+        ok = fz > 0
+        if ok.sum() > 1:
+            pts_floor = np.round(fuv[ok] * (1 << shift)).astype(np.int32).reshape(-1, 1, 2)
+            cv2.polylines(image, [pts_floor], False, (60, 60, 60), 1, cv2.LINE_AA, shift)
     frac = np.arange(n) / max(n - 1, 1)
     # Colour ramp from cyan (start) to magenta (end) so the walking direction is readable.
     colors = np.stack([255 * frac, 255 * (1 - frac), np.full(n, 255.0)], axis=1)
-    shift = 4  # sub-pixel precision for smooth anti-aliased lines
     pts = np.round(uv * (1 << shift)).astype(np.int64)
     for i in range(n - 1):  # path segments (frames), not pixels
         if z[i] <= 0 or z[i + 1] <= 0:

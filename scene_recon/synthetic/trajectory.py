@@ -143,9 +143,14 @@ class TrajectoryConfig:
     #: Hand wobble: smooth 3D position noise amplitude and time scale.
     wobble_m: float = 0.01
     wobble_interval_s: float = 0.5
-    #: Look-at targets: time per target, preferred horizontal distance, random offset, and the
-    #: height looked at when no points of interest are given.
+    #: Look-at targets: time per target, duration of the (smooth) gaze shift to the next one at the
+    #: end of each dwell, preferred horizontal distance, random offset, and the height looked at
+    #: when no points of interest are given.
     target_dwell_s: float = 2.5
+    target_transition_s: float = 1.0
+    #: Score penalty per unit (1 - cos) of head turn to the next target (prefers nearby targets
+    #: over ones behind the operator; 0 = any direction).
+    turn_penalty: float = 1.5
     preferred_target_distance_m: float = 2.0
     min_target_distance_m: float = 0.6
     target_jitter_m: float = 0.15
@@ -153,7 +158,7 @@ class TrajectoryConfig:
     #: Pitch limits (negative = looking down) and angular-rate limits.
     min_pitch_deg: float = -50.0
     max_pitch_deg: float = 0.0
-    max_yaw_rate_deg_s: float = 45.0
+    max_yaw_rate_deg_s: float = 60.0
     max_pitch_rate_deg_s: float = 30.0
     #: Gaussian smoothing (std, seconds) of the view angles after rate limiting.
     angle_smoothing_s: float = 0.3
@@ -353,19 +358,33 @@ def _smooth_loop(space: _FreeSpace, polyline: np.ndarray, spacing: float) -> tup
     """Dense samples (N, 2) of a closed spline through the loop and their arc lengths (N+1,).
 
     Tries the configured control spacing first and tightens it until the spline stays in free
-    space (a spline may cut corners the grid path goes around).
+    space (a spline may cut corners the grid path goes around). In cramped rooms (U-turns in
+    one-cell corridors) even the tightest spline can overshoot; then the offending samples are
+    snapped to their nearest free cell, a kink of at most a few grid cells.
     """
     for spacing_try in (spacing, spacing / 2, spacing / 4, 2 * space.res):
         controls = _resample_closed(polyline, max(spacing_try, space.res))
         k = len(controls)
         dense = catmull_rom(controls, np.linspace(0.0, k, 24 * k, endpoint=False), closed=True)
-        if np.all(space.lookup_free(dense)):
+        inside = space.lookup_free(dense)
+        if np.all(inside):
             break
     else:
-        raise ValueError("could not fit a smooth camera loop into the free space; lower the margins")
+        dense = _snap_to_free(space, dense, ~inside)
     closed = np.vstack([dense, dense[:1]])
     cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
     return closed, cum
+
+
+def _snap_to_free(space: _FreeSpace, xy: np.ndarray, bad: np.ndarray) -> np.ndarray:
+    """Move the `bad` points to the centre of the nearest free cell (vectorized)."""
+    ny, nx = space.free.shape
+    _, (iy, ix) = ndimage.distance_transform_edt(~space.free, return_indices=True)
+    ij = np.round((xy[bad] - space.origin) / space.res).astype(np.int64)
+    cx, cy = np.clip(ij[:, 0], 0, nx - 1), np.clip(ij[:, 1], 0, ny - 1)
+    out = xy.copy()
+    out[bad] = space.origin + space.res * np.stack([ix[cy, cx], iy[cy, cx]], axis=1)
+    return out
 
 
 # ---------------------------------------------------------------------- look-at targets
@@ -386,23 +405,45 @@ def _choose_targets(
         return np.column_stack([xy, np.full(k, config.default_target_height_m)])
     chosen = np.empty((k, 3))
     recent: list[int] = []
-    prev_dir: np.ndarray | None = None
+    previous: np.ndarray | None = None
     for j in range(k):  # loop over dwell knots (a few dozen), vectorized over points of interest
         delta = pois[:, :2] - positions[j, :2]
         dist = np.linalg.norm(delta, axis=1)
-        score = np.abs(dist - config.preferred_target_distance_m)
-        score = score + np.where(dist < config.min_target_distance_m, 10.0, 0.0)
+        # The target should stay comfortable until the gaze moves on: judge the distance at the
+        # end of the dwell too (walking right past an object whips the head around).
+        end = positions[min(j + 1, k - 1), :2]
+        dist_end = np.linalg.norm(pois[:, :2] - end, axis=1)
+        score = 0.5 * (np.abs(dist - config.preferred_target_distance_m)
+                       + np.abs(dist_end - config.preferred_target_distance_m))
+        score = score + np.where(np.minimum(dist, dist_end) < config.min_target_distance_m, 10.0, 0.0)
         score = score + np.where(np.isin(np.arange(len(pois)), recent), 2.0, 0.0)
-        if prev_dir is not None:  # prefer small head turns
+        if previous is not None:  # prefer small head turns from where the camera looks now
+            prev_dir = previous[:2] - positions[j, :2]
+            prev_dir = prev_dir / max(float(np.linalg.norm(prev_dir)), EPS)
             cosang = (delta @ prev_dir) / np.maximum(dist, EPS)
-            score = score + 0.75 * (1.0 - cosang)
+            score = score + config.turn_penalty * (1.0 - cosang)
         score = score + rng.uniform(0.0, 0.6, len(pois))
         best = int(np.argmin(score))
         recent = [*recent[-1:], best] if len(pois) > 2 else [best]
         chosen[j] = pois[best] + rng.uniform(-1, 1, 3) * config.target_jitter_m
-        d = delta[best]
-        prev_dir = d / max(float(np.linalg.norm(d)), EPS)
+        previous = chosen[j]
     return chosen
+
+
+def _gaze_targets(knots: np.ndarray, s: np.ndarray, dwell_s: float, transition_s: float) -> np.ndarray:
+    """Fixate each knot target, then shift smoothly to the next during the last `transition_s`.
+
+    People look at an object for a while and then turn to the next; a spline through the targets
+    would instead keep the gaze permanently between objects. The shift uses smootherstep (zero
+    velocity and acceleration at both ends), so the gaze path stays C2.
+    """
+    k = len(knots)
+    i = np.clip(np.floor(s).astype(np.int64), 0, k - 1)
+    j = np.minimum(i + 1, k - 1)
+    hold = 1.0 - np.clip(transition_s / max(dwell_s, EPS), 0.0, 1.0)
+    f = np.clip((s - i - hold) / max(1.0 - hold, EPS), 0.0, 1.0)
+    w = (f * f * f * (f * (6 * f - 15) + 10))[:, None]
+    return (1 - w) * knots[i] + w * knots[j]
 
 
 # ---------------------------------------------------------------------- main entry
@@ -467,7 +508,7 @@ def generate_trajectory(
     knot_times = np.arange(n_knots) * dwell
     knot_pos = np.column_stack([np.interp(knot_times, times, positions[:, i]) for i in range(3)])
     knot_targets = _choose_targets(knot_pos, pois, room, cfg, rng)
-    targets = catmull_rom(knot_targets, times / dwell)
+    targets = _gaze_targets(knot_targets, times / dwell, dwell, cfg.target_transition_s)
 
     # View angles: follow the targets with bounded angular rate, then smooth.
     view = targets - positions

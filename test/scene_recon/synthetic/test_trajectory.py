@@ -71,7 +71,7 @@ def test_smooth_motion(traj):
 
 
 def test_level_and_pitched_down(traj):
-    yaw, pitch, roll = pose_angles(traj.poses)
+    _, pitch, roll = pose_angles(traj.poses)
     assert np.abs(np.degrees(roll)).max() <= 3 * TrajectoryConfig().roll_jitter_deg + 1e-6
     assert np.degrees(np.abs(roll)).mean() < 1.5
     assert np.degrees(pitch).max() <= 0.0 + 1e-6 and np.degrees(pitch).mean() < -5.0
