@@ -147,6 +147,34 @@ def _parse_xml(path: Path) -> etree._Element:
     return root
 
 
+def _check_structure(root: etree._Element, urdf: Path) -> None:
+    """Link/joint graph checks yourdfpy would otherwise fail on with cryptic errors."""
+    links = [lk.get("name") for lk in root.iterfind("link")]
+    if not links or any(not n for n in links):
+        raise CadImportError(f"{urdf}: every <link> needs a name and there must be at least one")
+    if len(set(links)) != len(links):
+        raise CadImportError(f"{urdf}: duplicate link names")
+    known, parent_of = set(links), {}
+    for joint in root.iterfind("joint"):
+        name = joint.get("name")
+        parent, child = joint.find("parent"), joint.find("child")
+        ends = (None if parent is None else parent.get("link"), None if child is None else child.get("link"))
+        if not name or None in ends:
+            raise CadImportError(f"{urdf}: joint {name!r} needs a name, a parent and a child link")
+        if not set(ends) <= known:
+            raise CadImportError(f"{urdf}: joint {name!r} connects unknown links {ends[0]!r} -> {ends[1]!r}")
+        if ends[1] in parent_of:
+            raise CadImportError(f"{urdf}: link {ends[1]!r} has two parent joints")
+        parent_of[ends[1]] = ends[0]
+    roots = [n for n in links if n not in parent_of]
+    reached, frontier = set(roots[:1]), roots[:1]
+    while frontier:
+        frontier = [c for c, p in parent_of.items() if p in frontier and c not in reached]
+        reached.update(frontier)
+    if len(roots) != 1 or len(reached) != len(links):
+        raise CadImportError(f"{urdf}: the joints must form a tree with exactly one root link (roots {roots})")
+
+
 def _resolve_mesh(fname: str, base: Path, urdf: Path) -> Path:
     """Map a URDF mesh filename onto a file inside ``base`` (relative, package://, file://)."""
     raw = fname.strip()
@@ -295,6 +323,7 @@ def import_urdf_model(
     mid = sanitize_name(model_id or meta.model_id or base.name, "model")
 
     root = _parse_xml(urdf_path)
+    _check_structure(root, urdf_path)
     mesh_map = _mesh_map(root, base, urdf_path)
 
     def handler(fname: str) -> str:
@@ -308,7 +337,7 @@ def import_urdf_model(
             build_collision_scene_graph=False,
             load_collision_meshes=False,
             filename_handler=handler,
-            force_mesh=True,
+            force_mesh=False,  # one node per loaded geometry; _link_meshes concatenates per link
         )
     except CadImportError:
         raise
