@@ -3,12 +3,15 @@
 set -euo pipefail
 PY=${1:-python3}
 missing=()
+# ldconfig lives in /sbin, which a non-login PATH may lack
+LDCONFIG=$(command -v ldconfig || echo /sbin/ldconfig)
+have_lib() { "$LDCONFIG" -p 2>/dev/null | grep -q "$1"; }
 command -v cmake >/dev/null || missing+=(cmake)
 command -v g++ >/dev/null || missing+=(g++)
 command -v make >/dev/null || missing+=(make)
-ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so' || missing+=(libusb-1.0-0)   # import open3d needs it
-ldconfig -p 2>/dev/null | grep -q 'libGL.so.1' || missing+=(libgl1)              # open3d-cpu links libGL
-ldconfig -p 2>/dev/null | grep -q 'libgomp.so.1' || missing+=(libgomp1)
+have_lib 'libusb-1.0.so' || missing+=(libusb-1.0-0)   # import open3d needs it
+have_lib 'libGL.so.1' || missing+=(libgl1)              # open3d-cpu links libGL
+have_lib 'libgomp.so.1' || missing+=(libgomp1)
 if [ -z "$PY" ] || ! command -v "$PY" >/dev/null; then
   missing+=(python3 python3-venv python3-dev)
 else
