@@ -89,8 +89,8 @@ def extract_planes(
     """Detect planes by iterative RANSAC and return them with outward unit normals.
 
     ``geometry`` is a mesh (``sample_count`` surface samples with face normals are drawn) or an
-    (N, 3) point cloud with optional per-point ``normals``. Each round draws ``iterations``
-    random point triples (vectorised), keeps the plane with most inliers (distance below
+    (N, 3) point cloud with optional per-point ``normals`` (randomly thinned to ``sample_count``).
+    Each round draws ``iterations`` random point triples (vectorised), keeps the plane with most inliers (distance below
     ``distance_threshold`` and, with normals, normal agreement ``|cos| > normal_cos``), refits it
     by least squares and removes its inliers; it stops once the best plane holds fewer than
     ``min_inlier_fraction`` of the *original* cloud.
@@ -113,6 +113,10 @@ def extract_planes(
                 raise ValueError("normals must have one row per point")
             lengths = np.linalg.norm(nrm, axis=1, keepdims=True)
             nrm = nrm / np.maximum(lengths, EPS_NORM)
+        if len(pts) > sample_count:  # bound the (points x iterations) inlier matrix
+            keep = rng.choice(len(pts), size=sample_count, replace=False)
+            pts = pts[keep]
+            nrm = None if nrm is None else nrm[keep]
     n_total = len(pts)
     if n_total < 3:
         return []
@@ -250,6 +254,8 @@ def find_support_surfaces(
     split = np.flatnonzero(np.diff(heights[order]) > height_tol) + 1
     surfaces: list[SupportSurface] = []
     for group in np.split(up[order], split):
+        if mesh.area_faces[group].sum() < min_area:
+            continue
         for comp in _face_components(mesh, group):
             areas = mesh.area_faces[comp]
             total = float(areas.sum())
