@@ -90,10 +90,10 @@ def extract_planes(
 
     ``geometry`` is a mesh (``sample_count`` surface samples with face normals are drawn) or an
     (N, 3) point cloud with optional per-point ``normals`` (randomly thinned to ``sample_count``).
-    Each round draws ``iterations`` random point triples (vectorised), keeps the plane with most inliers (distance below
-    ``distance_threshold`` and, with normals, normal agreement ``|cos| > normal_cos``), refits it
-    by least squares and removes its inliers; it stops once the best plane holds fewer than
-    ``min_inlier_fraction`` of the *original* cloud.
+    Each round draws ``iterations`` random point triples (vectorised), keeps the plane with most
+    inliers (distance below ``distance_threshold`` and, with normals, normal agreement
+    ``|cos| > normal_cos``), refits it by least squares and removes its inliers; it stops once
+    the best plane holds fewer than ``min_inlier_fraction`` of the *original* cloud.
 
     Outward orientation: with normals, the plane normal follows the inliers' normals (and only
     inliers on that side are consumed, so the two faces of a thin board become two planes);
