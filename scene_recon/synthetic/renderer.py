@@ -125,7 +125,11 @@ def tileable_noise(size: int, seed: int, min_cycles: float = 2.0, max_cycles: fl
 
 
 class RaycastRenderer:
-    """Renders `RenderItem`s from arbitrary poses/intrinsics; the ray-casting scene is built once."""
+    """Renders `RenderItem`s from arbitrary poses/intrinsics; the ray-casting scene is built once.
+
+    Not thread-safe: per-intrinsics ray buffers are reused between calls (Embree already uses all
+    cores inside one `cast`, so there is nothing to gain from calling it from several threads).
+    """
 
     def __init__(self, items: Sequence[RenderItem], config: RenderConfig | None = None) -> None:
         if not items:
@@ -143,12 +147,11 @@ class RaycastRenderer:
         self._geom_to_item[ids] = np.arange(len(self.items), dtype=np.int32)
         self._sequential_ids = bool(np.array_equal(ids, np.arange(len(ids))))
         self._labels = np.array([0, *[it.label for it in self.items]], dtype=np.int32)  # index+1
-        if len(self.items) >= 2**31 - 1:
-            raise ValueError("too many items")
         self._build_smooth_normal_tables()
         self._build_appearance_tables()
         self._ray_cache: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._noise_cache: dict[tuple[int, int], np.ndarray] = {}
+        self._vignette_cache: dict[tuple, np.ndarray] = {}
 
     # ------------------------------------------------------------------ set-up
     def _build_smooth_normal_tables(self) -> None:
@@ -393,13 +396,13 @@ class RaycastRenderer:
         return out.reshape(-1)
 
     def _vignette(self, intrinsics: CameraIntrinsics) -> np.ndarray:
-        key = ("vignette", intrinsics.width, intrinsics.height, intrinsics.cx, intrinsics.cy)
-        if key not in self._ray_cache:
+        key = (intrinsics.width, intrinsics.height, intrinsics.cx, intrinsics.cy)
+        if key not in self._vignette_cache:
             u = (np.arange(intrinsics.width) - intrinsics.cx) / max(intrinsics.width / 2.0, 1.0)
             v = (np.arange(intrinsics.height) - intrinsics.cy) / max(intrinsics.height / 2.0, 1.0)
             r2 = (u[None, :] ** 2 + v[:, None] ** 2) / 2.0  # 1 at the corners
-            self._ray_cache[key] = (1.0 - self.config.shading.vignetting * r2).astype(np.float32)  # type: ignore[assignment]
-        return self._ray_cache[key]  # type: ignore[return-value]
+            self._vignette_cache[key] = (1.0 - self.config.shading.vignetting * r2).astype(np.float32)
+        return self._vignette_cache[key]
 
     def _pixel_noise(self, h: int, w: int, rng: np.random.Generator) -> np.ndarray:
         """A random (h, w, 3) window of a pre-drawn Gaussian noise bank.

@@ -143,22 +143,24 @@ class TrajectoryConfig:
     #: Hand wobble: smooth 3D position noise amplitude and time scale.
     wobble_m: float = 0.01
     wobble_interval_s: float = 0.5
-    #: Look-at targets: time per target, duration of the (smooth) gaze shift to the next one at the
-    #: end of each dwell, preferred horizontal distance, random offset, and the height looked at
-    #: when no points of interest are given.
-    target_dwell_s: float = 2.5
-    target_transition_s: float = 1.0
+    #: Look-at targets: fixation time per target (+-25 %), minimum duration of the smooth turn to
+    #: the next one (longer for big turns, see the rate limits), preferred horizontal distance,
+    #: random offset, and the height looked at when no points of interest are given.
+    target_dwell_s: float = 1.5
+    target_transition_s: float = 0.6
     #: Score penalty per unit (1 - cos) of head turn to the next target (prefers nearby targets
     #: over ones behind the operator; 0 = any direction).
-    turn_penalty: float = 1.5
-    preferred_target_distance_m: float = 2.0
+    turn_penalty: float = 0.3
+    #: Score penalty per earlier look at the same point of interest (favours covering new objects).
+    revisit_penalty: float = 1.5
+    preferred_target_distance_m: float = 2.5
     min_target_distance_m: float = 0.6
     target_jitter_m: float = 0.15
     default_target_height_m: float = 0.7
     #: Pitch limits (negative = looking down) and angular-rate limits.
     min_pitch_deg: float = -50.0
     max_pitch_deg: float = 0.0
-    max_yaw_rate_deg_s: float = 60.0
+    max_yaw_rate_deg_s: float = 80.0
     max_pitch_rate_deg_s: float = 30.0
     #: Gaussian smoothing (std, seconds) of the view angles after rate limiting.
     angle_smoothing_s: float = 0.3
@@ -388,62 +390,122 @@ def _snap_to_free(space: _FreeSpace, xy: np.ndarray, bad: np.ndarray) -> np.ndar
 
 
 # ---------------------------------------------------------------------- look-at targets
-def _choose_targets(
+@dataclass
+class _GazeState:
+    """Bookkeeping of the target choice: how often each point was looked at, and the last one."""
+
+    looks: np.ndarray
+    last: int = -1
+
+
+def _choose_target(
+    now_xy: np.ndarray,
+    later_xy: np.ndarray,
+    pois: np.ndarray,
+    previous: np.ndarray | None,
+    state: _GazeState,
+    room: RoomBounds,
+    config: TrajectoryConfig,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """The next look-at point (3,), scored over all points of interest at once."""
+    if pois.size == 0:
+        # Nothing to look at in particular: look across the room, towards points around its centre.
+        ang = rng.uniform(0, 2 * np.pi)
+        xy = room.center + 0.3 * room.half_extents * np.array([np.cos(ang), np.sin(ang)])
+        return np.array([xy[0], xy[1], config.default_target_height_m])
+    delta = pois[:, :2] - now_xy
+    dist = np.linalg.norm(delta, axis=1)
+    # The target should stay comfortable until the gaze moves on: judge the distance at the end
+    # of the dwell too (walking right past an object whips the head around).
+    dist_end = np.linalg.norm(pois[:, :2] - later_xy, axis=1)
+    pref = config.preferred_target_distance_m
+    score = 0.5 * (np.abs(dist - pref) + np.abs(dist_end - pref))
+    score = score + np.where(np.minimum(dist, dist_end) < config.min_target_distance_m, 10.0, 0.0)
+    # Variety: the last target is nearly excluded, earlier ones are penalized per look, so a
+    # short recording still sweeps over many objects.
+    score = score + config.revisit_penalty * state.looks + np.where(np.arange(len(pois)) == state.last, 2.0, 0.0)
+    if previous is not None:  # prefer small head turns from where the camera looks now
+        prev_dir = previous[:2] - now_xy
+        prev_dir = prev_dir / max(float(np.linalg.norm(prev_dir)), EPS)
+        cosang = (delta @ prev_dir) / np.maximum(dist, EPS)
+        score = score + config.turn_penalty * (1.0 - cosang)
+    score = score + rng.uniform(0.0, 0.6, len(pois))
+    best = int(np.argmin(score))
+    state.looks[best] += 1.0
+    state.last = best
+    return pois[best] + rng.uniform(-1, 1, 3) * config.target_jitter_m
+
+
+def _view_angles(positions: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Yaw and pitch (radians) of the directions from positions to targets (both (N, 3))."""
+    view = targets - positions
+    horiz = np.linalg.norm(view[:, :2], axis=1)
+    yaw = np.arctan2(view[:, 1], view[:, 0])
+    pitch = np.arctan2(view[:, 2], np.maximum(horiz, 0.25))  # steep views close by are clipped later
+    return yaw, pitch
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+def _plan_gaze(
+    times: np.ndarray,
     positions: np.ndarray,
     pois: np.ndarray,
     room: RoomBounds,
     config: TrajectoryConfig,
     rng: np.random.Generator,
-) -> np.ndarray:
-    """One look-at point per knot position (K, 3)."""
-    k = len(positions)
-    if pois.size == 0:
-        # Nothing to look at in particular: look across the room, towards points around its centre.
-        ang = rng.uniform(0, 2 * np.pi, k)
-        off = 0.3 * room.half_extents * np.stack([np.cos(ang), np.sin(ang)], axis=1)
-        xy = room.center + off
-        return np.column_stack([xy, np.full(k, config.default_target_height_m)])
-    chosen = np.empty((k, 3))
-    recent: list[int] = []
-    previous: np.ndarray | None = None
-    for j in range(k):  # loop over dwell knots (a few dozen), vectorized over points of interest
-        delta = pois[:, :2] - positions[j, :2]
-        dist = np.linalg.norm(delta, axis=1)
-        # The target should stay comfortable until the gaze moves on: judge the distance at the
-        # end of the dwell too (walking right past an object whips the head around).
-        end = positions[min(j + 1, k - 1), :2]
-        dist_end = np.linalg.norm(pois[:, :2] - end, axis=1)
-        score = 0.5 * (np.abs(dist - config.preferred_target_distance_m)
-                       + np.abs(dist_end - config.preferred_target_distance_m))
-        score = score + np.where(np.minimum(dist, dist_end) < config.min_target_distance_m, 10.0, 0.0)
-        score = score + np.where(np.isin(np.arange(len(pois)), recent), 2.0, 0.0)
-        if previous is not None:  # prefer small head turns from where the camera looks now
-            prev_dir = previous[:2] - positions[j, :2]
-            prev_dir = prev_dir / max(float(np.linalg.norm(prev_dir)), EPS)
-            cosang = (delta @ prev_dir) / np.maximum(dist, EPS)
-            score = score + config.turn_penalty * (1.0 - cosang)
-        score = score + rng.uniform(0.0, 0.6, len(pois))
-        best = int(np.argmin(score))
-        recent = [*recent[-1:], best] if len(pois) > 2 else [best]
-        chosen[j] = pois[best] + rng.uniform(-1, 1, 3) * config.target_jitter_m
-        previous = chosen[j]
-    return chosen
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Raw (yaw, pitch) per frame and the gaze target points: fixate, then turn to the next target.
 
-
-def _gaze_targets(knots: np.ndarray, s: np.ndarray, dwell_s: float, transition_s: float) -> np.ndarray:
-    """Fixate each knot target, then shift smoothly to the next during the last `transition_s`.
-
-    People look at an object for a while and then turn to the next; a spline through the targets
-    would instead keep the gaze permanently between objects. The shift uses smootherstep (zero
-    velocity and acceleration at both ends), so the gaze path stays C2.
+    Each target is held for about `target_dwell_s`; the turn to the next one takes
+    `target_transition_s` or longer for big turns (so the smootherstep's peak rate stays within the
+    rate limits), and blends the *view angles* towards both targets as seen from the current
+    position, so the turn is a clean head rotation rather than a sweep across the room.
     """
-    k = len(knots)
-    i = np.clip(np.floor(s).astype(np.int64), 0, k - 1)
-    j = np.minimum(i + 1, k - 1)
-    hold = 1.0 - np.clip(transition_s / max(dwell_s, EPS), 0.0, 1.0)
-    f = np.clip((s - i - hold) / max(1.0 - hold, EPS), 0.0, 1.0)
-    w = (f * f * f * (f * (6 * f - 15) + 10))[:, None]
-    return (1 - w) * knots[i] + w * knots[j]
+    duration = float(times[-1])
+
+    def pos_at(t: float) -> np.ndarray:
+        return np.array([np.interp(t, times, positions[:, i]) for i in range(3)])
+
+    dwell = max(config.target_dwell_s, EPS)
+    state = _GazeState(looks=np.zeros(len(pois)))
+    starts, hold_ends, targets = [], [], []
+    t = 0.0
+    target = _choose_target(pos_at(0.0)[:2], pos_at(dwell)[:2], pois, None, state, room, config, rng)
+    while True:  # one iteration per fixation (a few per 10 s)
+        hold_end = t + dwell * float(rng.uniform(0.75, 1.25))
+        starts.append(t)
+        hold_ends.append(hold_end)
+        targets.append(target)
+        if hold_end >= duration:
+            break
+        here = pos_at(hold_end)
+        nxt = _choose_target(here[:2], pos_at(hold_end + dwell)[:2], pois, target, state, room, config, rng)
+        (ya, yb), (pa, pb) = _view_angles(np.stack([here, here]), np.stack([target, nxt]))
+        turn = max(
+            config.target_transition_s,
+            1.875 * abs(float(_wrap(yb - ya))) / np.radians(max(config.max_yaw_rate_deg_s, EPS)),
+            1.875 * abs(float(pb - pa)) / np.radians(max(config.max_pitch_rate_deg_s, EPS)),
+        )  # 1.875 = peak / mean rate of smootherstep
+        t = hold_end + turn
+        target = nxt
+    starts_a, hold_a, targets_a = np.array(starts), np.array(hold_ends), np.array(targets)
+    k = np.searchsorted(starts_a, times, side="right") - 1
+    k_next = np.minimum(k + 1, len(starts_a) - 1)
+    span = np.where(k_next > k, starts_a[k_next] - hold_a[k], 1.0)
+    f = np.where(k_next > k, np.clip((times - hold_a[k]) / np.maximum(span, EPS), 0.0, 1.0), 0.0)
+    w = f * f * f * (f * (6 * f - 15) + 10)  # smootherstep: zero rate and acceleration at both ends
+    yaw_a, pitch_a = _view_angles(positions, targets_a[k])
+    yaw_b, pitch_b = _view_angles(positions, targets_a[k_next])
+    # Unwrap the fixation headings first so that blends never take the long way round.
+    yaw_a = np.unwrap(yaw_a)
+    yaw = yaw_a + w * _wrap(yaw_b - yaw_a)
+    pitch = pitch_a + w * (pitch_b - pitch_a)
+    gaze_points = (1 - w)[:, None] * targets_a[k] + w[:, None] * targets_a[k_next]
+    return np.unwrap(yaw), pitch, gaze_points
 
 
 # ---------------------------------------------------------------------- main entry
@@ -502,23 +564,8 @@ def generate_trajectory(
     positions = positions + wobble
     positions[:, 2] = np.clip(positions[:, 2], cfg.min_height_m, cfg.max_height_m)
 
-    # Look-at targets at dwell knots, interpolated smoothly in between.
-    dwell = max(cfg.target_dwell_s, 1.0 / fps)
-    n_knots = int(np.ceil(duration / dwell)) + 1
-    knot_times = np.arange(n_knots) * dwell
-    knot_pos = np.column_stack([np.interp(knot_times, times, positions[:, i]) for i in range(3)])
-    knot_targets = _choose_targets(knot_pos, pois, room, cfg, rng)
-    targets = _gaze_targets(knot_targets, times / dwell, dwell, cfg.target_transition_s)
-
-    # View angles: follow the targets with bounded angular rate, then smooth.
-    view = targets - positions
-    horiz = np.linalg.norm(view[:, :2], axis=1)
-    yaw_raw = np.unwrap(np.arctan2(view[:, 1], view[:, 0]))
-    # Directly above/below a target the heading is undefined: hold the neighbours' heading there.
-    ok = horiz > 0.25
-    if np.any(ok) and not np.all(ok):
-        yaw_raw = np.interp(times, times[ok], yaw_raw[ok])
-    pitch_raw = np.arctan2(view[:, 2], np.maximum(horiz, 0.25))
+    # Gaze: fixate points of interest in turn; then follow with bounded angular rate and smooth.
+    yaw_raw, pitch_raw, targets = _plan_gaze(times, positions, pois, room, cfg, rng)
     pitch_raw = np.clip(pitch_raw, np.radians(cfg.min_pitch_deg), np.radians(cfg.max_pitch_deg))
     sigma = cfg.angle_smoothing_s * fps
     yaw = _rate_limit(yaw_raw, np.radians(cfg.max_yaw_rate_deg_s) / fps)
