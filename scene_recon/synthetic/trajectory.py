@@ -110,16 +110,26 @@ class PoseNoiseConfig:
 
 @dataclass
 class TrajectoryConfig:
-    """Tunables of `generate_trajectory` (distances in metres, angles in degrees, times in s)."""
+    """Tunables of `generate_trajectory` (distances in metres, angles in degrees, times in s).
+
+    Guarantee: camera positions keep at least the margins from walls and footprints, minus the
+    hand wobble amplitude and about one grid cell (the free space is a grid).
+    """
 
     #: Keep-out distance from the walls and from furniture footprints.
     wall_margin_m: float = 0.5
     obstacle_margin_m: float = 0.35
     #: Free-space grid resolution.
     grid_resolution_m: float = 0.05
-    #: Waypoints on a ring at this fraction of the free area's half extents, with radial jitter.
+    #: Waypoints on a ring around the room centre, with radial jitter. The ring's size (as a
+    #: fraction of the free area's half extents) adapts to the recording: large enough that
+    #: `laps` loops take the whole duration at `nominal_speed_mps`, within
+    #: [min_loop_fraction, loop_fraction]. A short recording thus circles the middle of the room
+    #: looking outwards (sees every wall) instead of walking a third of a big loop.
     num_waypoints: int = 8
-    loop_fraction: float = 0.65
+    loop_fraction: float = 0.7
+    min_loop_fraction: float = 0.2
+    nominal_speed_mps: float = 0.35
     waypoint_jitter: float = 0.15
     #: Path cost = length * (1 + clearance_weight / (clearance + 0.1)): prefer open floor.
     clearance_weight: float = 0.5
@@ -167,6 +177,8 @@ class TrajectoryConfig:
     #: Roll jitter amplitude (about the std) and time scale; hard-clipped at 3x amplitude.
     roll_jitter_deg: float = 1.0
     roll_interval_s: float = 1.5
+    #: Settings for `add_pose_noise` (kept here so one YAML section describes the trajectory);
+    #: `generate_trajectory` itself always returns the true poses.
     pose_noise: PoseNoiseConfig = field(default_factory=PoseNoiseConfig)
 
 
@@ -300,7 +312,9 @@ def _grid_graph(space: _FreeSpace, clearance_weight: float) -> sparse.csr_matrix
                              shape=(ny * nx, ny * nx))
 
 
-def _waypoints(space: _FreeSpace, room: RoomBounds, config: TrajectoryConfig, rng: np.random.Generator) -> np.ndarray:
+def _waypoints(
+    space: _FreeSpace, room: RoomBounds, config: TrajectoryConfig, fraction: float, rng: np.random.Generator
+) -> np.ndarray:
     """Flat cell ids of waypoints on a jittered ring around the room, snapped to free cells."""
     centers = space.cell_centers().reshape(-1, 2)
     free_ids = np.flatnonzero(space.free.reshape(-1))
@@ -311,7 +325,7 @@ def _waypoints(space: _FreeSpace, room: RoomBounds, config: TrajectoryConfig, rn
     direction = 1.0 if rng.uniform() < 0.5 else -1.0
     angles = start + direction * (2 * np.pi * np.arange(k) / k + rng.uniform(-0.3, 0.3, k) * np.pi / k)
     half = np.maximum(room.half_extents - config.wall_margin_m, space.res)
-    radius = config.loop_fraction * (1.0 + config.waypoint_jitter * rng.uniform(-1, 1, k))
+    radius = fraction * (1.0 + config.waypoint_jitter * rng.uniform(-1, 1, k))
     target = room.center + (radius[:, None] * half) * np.stack([np.cos(angles), np.sin(angles)], axis=1)
     dist = np.linalg.norm(free_xy[None, :, :] - target[:, None, :], axis=2)
     score = dist - 0.5 * np.minimum(free_clear, config.obstacle_margin_m)[None, :]
@@ -541,13 +555,19 @@ def generate_trajectory(
     else:
         raise ValueError(f"no free floor space for the camera in {room} with the given obstacles")
 
-    waypoint_ids = _waypoints(space, room, cfg, rng)
+    times = np.arange(num_frames, dtype=np.float64) / fps
+    duration = max(float(times[-1]), 1.0 / fps)
+    half = np.maximum(room.half_extents - cfg.wall_margin_m, cfg.grid_resolution_m)
+    # Ramanujan's ellipse perimeter for the ring at fraction 1.
+    h = ((half[0] - half[1]) / (half[0] + half[1])) ** 2
+    perimeter = np.pi * (half[0] + half[1]) * (1 + 3 * h / (10 + np.sqrt(4 - 3 * h)))
+    wanted = cfg.nominal_speed_mps * duration / max(cfg.laps, EPS)
+    fraction = float(np.clip(wanted / perimeter, cfg.min_loop_fraction, max(cfg.loop_fraction, cfg.min_loop_fraction)))
+
+    waypoint_ids = _waypoints(space, room, cfg, fraction, rng)
     polyline = _loop_polyline(space, waypoint_ids, cfg.clearance_weight)
     loop, cum = _smooth_loop(space, polyline, cfg.control_spacing_m)
     length = float(cum[-1])
-
-    times = np.arange(num_frames, dtype=np.float64) / fps
-    duration = max(float(times[-1]), 1.0 / fps)
     if cfg.speed_mps > 0:
         speed = cfg.speed_mps
     else:

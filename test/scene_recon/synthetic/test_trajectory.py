@@ -147,3 +147,20 @@ def test_catmull_rom_interpolates():
     pts = np.array([[0.0, 0], [1, 0], [1, 1], [0, 1]])
     np.testing.assert_allclose(catmull_rom(pts, np.arange(4.0), closed=True), pts, atol=1e-12)
     np.testing.assert_allclose(catmull_rom(pts, np.arange(4.0)), pts, atol=1e-12)
+
+
+def test_loop_grows_with_recording_length():
+    def extent(frames: int) -> float:
+        t = generate_trajectory(ROOM, POIS, [], num_frames=frames, fps=FPS, seed=2)
+        return float(np.ptp(t.positions[:, 0]) + np.ptp(t.positions[:, 1]))
+
+    assert extent(1800) > extent(150) + 0.5
+
+
+def test_trajectory_config_from_yaml(tmp_path):
+    from scene_recon.config import dump_config, load_config
+
+    path = tmp_path / "traj.yaml"
+    dump_config(TrajectoryConfig(), path)
+    cfg = load_config(TrajectoryConfig, path, overrides={"pose_noise.jitter_translation_m": 0.01, "laps": 2.0})
+    assert cfg.pose_noise.jitter_translation_m == 0.01 and cfg.laps == 2.0
