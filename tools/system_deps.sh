@@ -5,7 +5,8 @@ PY=${1:-python3}
 missing=()
 # ldconfig lives in /sbin, which a non-login PATH may lack
 LDCONFIG=$(command -v ldconfig || echo /sbin/ldconfig)
-have_lib() { "$LDCONFIG" -p 2>/dev/null | grep -q "$1"; }
+LIBS=$("$LDCONFIG" -p 2>/dev/null || true)   # read once: `ldconfig | grep -q` dies of SIGPIPE under pipefail
+have_lib() { grep -qF "$1" <<<"$LIBS"; }
 command -v cmake >/dev/null || missing+=(cmake)
 command -v g++ >/dev/null || missing+=(g++)
 command -v make >/dev/null || missing+=(make)
