@@ -10,9 +10,10 @@ horizon roughly level. The generator reproduces that:
    shortest paths (scipy's Dijkstra on the grid graph) so the loop never crosses furniture;
 3. a closed Catmull-Rom spline through equally spaced control points of that loop, walked at a
    smoothly varying speed, with a smooth height profile and a small hand wobble;
-4. a sequence of look-at targets chosen among the points of interest (preferring a comfortable
-   distance and not the same object twice in a row), interpolated smoothly; yaw and pitch are
-   rate-limited then smoothed, roll is a small smooth jitter around zero.
+4. a gaze plan: fixate a point of interest (chosen for a comfortable distance, a small head turn
+   and objects not looked at yet), then turn smoothly to the next one, the turn taking longer
+   the bigger it is; yaw and pitch are rate-limited then smoothed, roll is a small smooth jitter
+   around zero.
 
 Everything is deterministic for a seed. `add_pose_noise` turns the true poses into "estimated"
 poses (drift + jitter) for testing robustness to imperfect localisation; the generator itself
@@ -536,6 +537,8 @@ def generate_trajectory(
 
     points_of_interest: (N, 3) map-frame points the operator looks at (object centres); may be
     empty. obstacles: floor footprints the camera must stay out of (with `obstacle_margin_m`).
+    In a room too cramped for the margins they are relaxed to 70 %, then 50 %, before giving up
+    with a ValueError.
     """
     cfg = config or TrajectoryConfig()
     if num_frames < 1:
