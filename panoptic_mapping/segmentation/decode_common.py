@@ -1,0 +1,42 @@
+"""What every output decoder needs to know about one call (shared by the three conventions)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .class_map import ModelClassMap
+from .letterbox import Letterbox
+from .model_config import OnnxModelConfig
+from .types import SegmentationError
+
+
+@dataclass
+class DecodeContext:
+    """The geometry and class mapping of one `OnnxSegmenter.segment` call."""
+
+    config: OnnxModelConfig
+    class_map: ModelClassMap
+    letterbox: Letterbox
+    depth: np.ndarray | None = None
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) of the source image."""
+        return self.letterbox.src_w, self.letterbox.src_h
+
+
+def squeeze_batch(array: np.ndarray, ndim: int, what: str) -> np.ndarray:
+    """Drop a leading batch dimension of 1 so the array has `ndim` dimensions."""
+    a = np.asarray(array)
+    while a.ndim > ndim and a.shape[0] == 1:
+        a = a[0]
+    if a.ndim != ndim:
+        raise SegmentationError(f"{what}: expected {ndim} dimensions (plus a batch of 1), got shape {array.shape}")
+    return a
+
+
+def cxcywh_to_xyxy(b: np.ndarray) -> np.ndarray:
+    half = b[:, 2:4] / 2.0
+    return np.concatenate([b[:, 0:2] - half, b[:, 0:2] + half], axis=1)

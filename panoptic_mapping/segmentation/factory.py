@@ -1,0 +1,62 @@
+"""`make_segmenter`: the backend named in the config, built with what it needs."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from cad_replacement.cad.classes import ClassTable
+
+from .base import PanopticSegmenter
+from .config import BACKENDS, SegmentationConfig, resolve_path
+from .none_backend import NoneSegmenter
+from .types import SegmentationError
+
+
+def _make_onnx(config: SegmentationConfig, ground_truth: Any, table: ClassTable | None) -> PanopticSegmenter:
+    from .onnx_backend import OnnxSegmenter  # onnxruntime is imported only when a model is used
+
+    path = resolve_path(config.onnx.model_config)
+    if not path.is_file():
+        raise SegmentationError(f"onnx backend: model config {config.onnx.model_config!r} not found")
+    return OnnxSegmenter.from_yaml(path, threads=config.onnx.threads, class_table=table)
+
+
+def _make_oracle(config: SegmentationConfig, ground_truth: Any, table: ClassTable | None) -> PanopticSegmenter:
+    from .oracle import OracleSegmenter
+
+    source = ground_truth if ground_truth is not None else config.oracle.ground_truth
+    if not source:
+        raise SegmentationError(
+            "oracle backend: no ground truth; set oracle.ground_truth to a generated scene's "
+            "<bag>_groundtruth folder (or pass ground_truth= to make_segmenter)"
+        )
+    return OracleSegmenter.from_ground_truth(source, config.oracle, table)
+
+
+def _make_none(config: SegmentationConfig, ground_truth: Any, table: ClassTable | None) -> PanopticSegmenter:
+    return NoneSegmenter()
+
+
+_BUILDERS: dict[str, Callable[[SegmentationConfig, Any, ClassTable | None], PanopticSegmenter]] = {
+    "onnx": _make_onnx,
+    "oracle": _make_oracle,
+    "none": _make_none,
+}
+
+
+def make_segmenter(
+    config: SegmentationConfig | None = None, ground_truth: Any = None, class_table: ClassTable | None = None
+) -> PanopticSegmenter:
+    """Build the backend `config.backend` names.
+
+    ground_truth: for `oracle`, a GroundTruthScene or folder overriding `config.oracle.ground_truth`.
+    """
+    cfg = config or SegmentationConfig()
+    try:
+        builder = _BUILDERS[cfg.backend]
+    except KeyError:
+        raise SegmentationError(
+            f"unknown segmentation backend {cfg.backend!r}; valid backends: {list(BACKENDS)}"
+        ) from None
+    return builder(cfg, ground_truth, class_table)
