@@ -1,0 +1,134 @@
+"""Configuration of the volumetric panoptic mapper (paper Sec. 3); mirrors `config/mapper.yaml`.
+
+Defaults follow the paper's implementation (REFERENCE.md sec. 2) where it gives a value, scaled to
+the processing resolution where the value is a pixel count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class DepthSegmentationConfig:
+    """Convexity-based depth segmentation (Furrer et al. 2018, Tateno et al. 2015)."""
+
+    #: Neighbour offsets (pixels, at processing resolution) compared for the edge tests.
+    neighbour_offsets: list[int] = field(default_factory=lambda: [1, 2])
+    #: Half window (pixels) of the box filter smoothing points before normal estimation.
+    normal_smoothing: int = 2
+    #: Half window (pixels) of the smoothing of points used by the edge tests (sensor noise).
+    edge_smoothing: int = 1
+    #: Pixel step of the finite differences used for normals.
+    normal_step: int = 2
+    #: Concave edge when n_i . n_j < this for a neighbour lying in front of the tangent plane.
+    min_convexity: float = 0.97
+    #: Depth discontinuity when |(p_j - p_i) . n_i| > this * depth_i.
+    max_discontinuity_ratio: float = 0.01
+    #: Plus an absolute floor (m) on the discontinuity test, against sensor quantization.
+    min_discontinuity_m: float = 0.02
+    #: Segments smaller than this many pixels (at full 640x480 resolution) are dropped.
+    min_segment_pixels: int = 200
+
+
+@dataclass
+class FusionConfig:
+    """Per-frame fusion of panoptic masks and geometric segments (Sec. 3.1)."""
+
+    #: Split a geometric segment to keep a panoptic mask it fully contains: the mask covers more
+    #: than `split_mask_coverage` of itself inside the segment and less than `split_segment_share`
+    #: of the segment (REFERENCE.md: 0.9 / 0.5).
+    split: bool = True
+    split_mask_coverage: float = 0.9
+    split_segment_share: float = 0.5
+    #: A geometric segment takes the label of the mask covering most of it if that mask covers at
+    #: least this share of it; otherwise it is background (REFERENCE.md: 0.2).
+    min_label_share: float = 0.2
+    #: Euclidean clustering of one instance's segments (Sec. 3.1): segments closer than this (m)
+    #: belong together; only the largest cluster keeps the instance label.
+    cluster: bool = True
+    cluster_distance_m: float = 0.05
+    #: Points subsampled per segment for the pairwise distance test (speed; exact enough).
+    cluster_max_points: int = 400
+    #: Segments with fewer points (at full 640x480 resolution) are not integrated with a label
+    #: (the paper used 800; 300 keeps cups and bottles a few metres away).
+    min_segment_points: int = 300
+
+
+@dataclass
+class AssociationConfig:
+    """Data association of frame segments to global segments (Sec. 3.2)."""
+
+    #: A frame segment joins the global segment with the most overlapping voxels if that overlap is
+    #: at least this share of the segment's points found in the map.
+    min_overlap_share: float = 0.2
+    #: ... and at least this many points.
+    min_overlap_points: int = 20
+    #: Two global segments a frame segment overlaps (each above the share) in this many frames merge.
+    merge_min_frames: int = 3
+    merge_overlap_share: float = 0.2
+
+
+@dataclass
+class RegularizationConfig:
+    """Map regularization (Sec. 3.3)."""
+
+    #: Run segment / instance merging every this many integrated frames (0: only at extraction).
+    every_n_frames: int = 10
+    #: Instance merging Eq. (5): shared votes >= m_th * all votes, and > min_shared_votes.
+    instance_merge_ratio: float = 0.5
+    instance_merge_min_votes: int = 10
+
+
+@dataclass
+class TSDFConfig:
+    voxel_size_m: float = 0.02
+    truncation_voxels: float = 4.0
+    block_resolution: int = 8
+    initial_block_count: int = 20000
+    min_depth_m: float = 0.1
+    max_depth_m: float = 4.0
+    max_weight: float = 100.0
+    #: Voxel weight needed for a surface to be meshed.
+    mesh_weight_threshold: float = 2.0
+
+
+@dataclass
+class KeyframeConfig:
+    """Segment only keyframes; other frames integrate geometry and reuse the map's labels."""
+
+    enabled: bool = True
+    min_translation_m: float = 0.15
+    min_rotation_deg: float = 10.0
+    max_interval_s: float = 1.0
+
+
+@dataclass
+class ExtractionConfig:
+    """Entity extraction (Sec. 3.4)."""
+
+    min_entity_voxels: int = 50
+    #: Ignore classes with this id (the "unknown/background" class).
+    background_class_id: int = -1
+
+
+@dataclass
+class MapperConfig:
+    #: "full" = the paper's method; "baseline" = Voxblox++-style fusion (greedy labels, separate
+    #: semantic and instance tracking, no split, no clustering) for the ablation.
+    mode: str = "full"
+    #: Process images downscaled by this integer factor (2: 640x480 -> 320x240).
+    downsample: int = 2
+    depth_segmentation: DepthSegmentationConfig = field(default_factory=DepthSegmentationConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+    association: AssociationConfig = field(default_factory=AssociationConfig)
+    regularization: RegularizationConfig = field(default_factory=RegularizationConfig)
+    tsdf: TSDFConfig = field(default_factory=TSDFConfig)
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    extraction: ExtractionConfig = field(default_factory=ExtractionConfig)
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("full", "baseline"):
+            raise ValueError(f"mapper mode must be 'full' or 'baseline', not {self.mode!r}")
+        if self.downsample < 1:
+            raise ValueError("downsample must be >= 1")

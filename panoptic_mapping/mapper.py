@@ -1,0 +1,393 @@
+"""The volumetric panoptic mapper (paper Sec. 3): ROS-free core used by the CLI and the node.
+
+Per frame: depth segmentation -> fusion with the panoptic masks (Sec. 3.1) -> association of the
+frame segments to global segments and of their instances to global instances (Sec. 3.2) ->
+TSDF + label integration and the triple count Phi (Eq. 4, Sec. 3.3); periodically the map is
+regularised (segment merging, instance merging by Eq. 5); entities are extracted by Eq. (6).
+
+`mode="baseline"` reproduces Voxblox++-style fusion for the paper's ablation: greedy label
+assignment without split or clustering, and separate semantic and instance tracking (instances
+are associated and extracted ignoring the class; no instance merging).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from panoptic_mapping.config import MapperConfig
+from panoptic_mapping.dataio.frame import RGBDFrame
+from panoptic_mapping.depth_segmentation import segment_depth
+from panoptic_mapping.entities import MappedEntity
+from panoptic_mapping.fusion import BACKGROUND, FrameSegments, PanopticMasks, fuse
+from panoptic_mapping.image_ops import downsample_depth, downsample_labels
+from panoptic_mapping.panoptic_counts import PanopticCounts
+from panoptic_mapping.tsdf_map import LabeledTSDF
+
+log = logging.getLogger(__name__)
+MAP_FORMAT_VERSION = 1
+
+
+@dataclass
+class ClassMeta:
+    """What the mapper needs to know about a class id."""
+
+    name: str
+    is_thing: bool
+    category: str
+
+
+@dataclass
+class FrameStats:
+    keyframe: bool
+    segments: int
+    new_labels: int
+    split: int
+    clustered_out: int
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+class PanopticMapper:
+    """Incremental panoptic TSDF map. Call `integrate(frame, masks)` per frame, `entities()` at will."""
+
+    def __init__(self, config: MapperConfig | None = None, classes: dict[int, ClassMeta] | None = None):
+        self.config = config or MapperConfig()
+        self.classes = classes or {}
+        self.tsdf = LabeledTSDF(self.config.tsdf)
+        self.counts = PanopticCounts()
+        self.merge_votes: dict[tuple[int, int], int] = {}
+        self.frames_integrated = 0
+        self.keyframes = 0
+        self._last_key_pose: np.ndarray | None = None
+        self._last_key_time: int | None = None
+
+    @property
+    def full(self) -> bool:
+        return self.config.mode == "full"
+
+    # ------------------------------------------------------------------ keyframes
+    def is_keyframe(self, frame: RGBDFrame) -> bool:
+        """Pose moved or time passed enough since the last keyframe (or gating disabled)."""
+        kc = self.config.keyframes
+        if not kc.enabled or self._last_key_pose is None or frame.pose is None:
+            return True
+        delta = np.linalg.inv(self._last_key_pose) @ frame.pose
+        moved = np.linalg.norm(delta[:3, 3]) >= kc.min_translation_m
+        angle = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1.0, 1.0)))
+        late = (frame.timestamp_ns - (self._last_key_time or 0)) * 1e-9 >= kc.max_interval_s
+        return bool(moved or angle >= kc.min_rotation_deg or late)
+
+    def mark_keyframe(self, frame: RGBDFrame) -> None:
+        self._last_key_pose = frame.pose
+        self._last_key_time = frame.timestamp_ns
+        self.keyframes += 1
+
+    # ------------------------------------------------------------------ per frame
+    def integrate(self, frame: RGBDFrame, masks: PanopticMasks | None) -> FrameStats:
+        """Integrate one posed frame; `masks` (full-resolution panoptic masks) only on keyframes."""
+        if frame.pose is None:
+            raise ValueError("the mapper needs a camera pose for every frame")
+        t0 = time.perf_counter()
+        cfg = self.config
+        ds = cfg.downsample
+        depth = downsample_depth(frame.depth, ds)
+        depth = np.where((depth >= cfg.tsdf.min_depth_m) & (depth <= cfg.tsdf.max_depth_m), depth, 0.0)
+        depth = depth.astype(np.float32)
+        intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
+        area = 1.0 / (ds * ds)
+        t = {}
+        geo, points, _normals = segment_depth(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
+        t["depth_segmentation"] = time.perf_counter()
+        if masks is not None:
+            masks = PanopticMasks(downsample_labels(masks.labels, ds), masks.class_id, masks.is_thing, masks.score)
+        else:
+            masks = PanopticMasks.empty(depth.shape)
+        min_pts = max(1, round(cfg.fusion.min_segment_points * area))
+        segs = fuse(geo, masks, points, cfg.fusion, full=self.full, min_points=min_pts)
+        t["fusion"] = time.perf_counter()
+        world = points.reshape(-1, 3) @ frame.pose[:3, :3].T.astype(np.float32) + frame.pose[:3, 3].astype(np.float32)
+        segmented = bool(masks.labels.any())
+        label_of_seg, new_labels, map_labels = self._associate(segs, world, count_merges=segmented)
+        t["association"] = time.perf_counter()
+        if segmented:
+            self._vote(segs, label_of_seg)
+        seg_flat = segs.image.ravel()
+        pix_labels = label_of_seg[seg_flat]
+        has = pix_labels > 0
+        if not segmented:
+            # frames without fresh masks fill unknown voxels but never fight labels the map holds
+            # (a purely geometric segment may be under-segmented: floor + wall in one piece)
+            has &= (map_labels == 0) | (map_labels == pix_labels)
+        lut = self.counts.canonical_lut()
+        self.tsdf.integrate_labels(world[has], pix_labels[has], lut)
+        for l in np.unique(pix_labels[has]).tolist():
+            self.counts.last_update[int(l)] = self.frames_integrated
+        self.tsdf.integrate_depth(depth, intr.matrix, frame.pose)
+        t["integration"] = time.perf_counter()
+        self.frames_integrated += 1
+        every = cfg.regularization.every_n_frames
+        if every and self.frames_integrated % every == 0:
+            self.regularize()
+        t["regularization"] = time.perf_counter()
+        timings, prev = {}, t0
+        for k, v in t.items():
+            timings[k] = (v - prev) * 1000
+            prev = v
+        return FrameStats(masks.labels.any(), segs.count, new_labels, segs.num_split, segs.num_clustered_out, timings)
+
+    def _associate(self, segs: FrameSegments, world: np.ndarray,
+                   count_merges: bool) -> tuple[np.ndarray, int, np.ndarray]:
+        """Global segment label of each frame segment (greedy by 3D overlap, Sec. 3.2).
+
+        Returns (label per segment id, number of new labels, canonical map label per pixel).
+        """
+        ac = self.config.association
+        n = segs.count + 1
+        label_of = np.zeros(n, np.int64)
+        flat = segs.image.ravel()
+        sel = flat > 0
+        pixel_map_labels = np.zeros(flat.size, np.int64)
+        if not np.any(sel):
+            return label_of, 0, pixel_map_labels
+        seg_ids = flat[sel].astype(np.int64)
+        lut = self.counts.canonical_lut()
+        map_labels = lut[self.tsdf.labels_at(world[sel])]
+        pixel_map_labels[sel] = map_labels
+        size = np.bincount(seg_ids, minlength=n)
+        hit = map_labels > 0
+        pairs = seg_ids[hit] * (int(lut.size) + 1) + map_labels[hit]
+        keys, counts = np.unique(pairs, return_counts=True)
+        p_seg, p_lab = keys // (int(lut.size) + 1), keys % (int(lut.size) + 1)
+        share = counts / np.maximum(size[p_seg], 1)
+        # merge evidence: a segment overlapping several global segments substantially (counted on
+        # segmented frames only, where the split step has separated what the masks tell apart)
+        strong = share >= ac.merge_overlap_share
+        if count_merges and np.any(strong):
+            for s in np.unique(p_seg[strong]):
+                labs = sorted(set(p_lab[strong & (p_seg == s)].tolist()))
+                for i in range(len(labs)):
+                    for j in range(i + 1, len(labs)):
+                        key = (labs[i], labs[j])
+                        self.merge_votes[key] = self.merge_votes.get(key, 0) + 1
+        ok = (counts >= ac.min_overlap_points) & (share >= ac.min_overlap_share)
+        order = np.argsort(-counts[ok], kind="stable")
+        taken: set[int] = set()
+        for s, lab in zip(p_seg[ok][order].tolist(), p_lab[ok][order].tolist(), strict=True):
+            if label_of[s] == 0 and lab not in taken:
+                label_of[s] = lab
+                taken.add(lab)
+        new = 0
+        for s in range(1, n):
+            if label_of[s] == 0 and size[s] > 0:
+                label_of[s] = self.counts.new_label()
+                new += 1
+        return label_of, new, pixel_map_labels
+
+    def _vote(self, segs: FrameSegments, label_of: np.ndarray) -> None:
+        """Instance association (Sec. 3.2) and the count update (Eq. 4) for a segmented frame."""
+        by_mask: dict[int, list[int]] = {}
+        for s in range(1, segs.count + 1):
+            if segs.class_id[s] == BACKGROUND or label_of[s] == 0:
+                continue
+            if not segs.is_thing[s]:
+                c = int(segs.class_id[s])
+                self.counts.add(int(label_of[s]), c, self.counts.instance_for_stuff(c))
+                continue
+            by_mask.setdefault(int(segs.mask_id[s]), []).append(s)
+        # each frame instance picks the global instance with most votes among its segments' past
+        # predictions (joint: same class only; baseline: any class); one frame instance per global one
+        proposals = []
+        for m, ss in by_mask.items():
+            c = int(segs.class_id[ss[0]])
+            votes: dict[int, int] = {}
+            for s in ss:
+                for p, v in self.counts.instance_votes(int(label_of[s]), c if self.full else None).items():
+                    votes[p] = votes.get(p, 0) + v
+            proposals.append((m, c, ss, votes))
+        proposals.sort(key=lambda x: -max(x[3].values(), default=0))
+        used: set[int] = set()
+        for _m, c, ss, votes in proposals:
+            choice = next((p for p, _ in sorted(votes.items(), key=lambda kv: -kv[1]) if p not in used), None)
+            if choice is None:
+                choice = self.counts.new_instance()
+            used.add(choice)
+            for s in ss:
+                self.counts.add(int(label_of[s]), c, choice)  # Eq. (4)
+
+    # ------------------------------------------------------------------ regularization
+    def regularize(self) -> dict[str, int]:
+        """Segment merging (shared voxels seen in >= merge_min_frames frames) and instance merging (Eq. 5)."""
+        ac, rc = self.config.association, self.config.regularization
+        merged_segments = 0
+        for (a, b), n in sorted(self.merge_votes.items(), key=lambda kv: -kv[1]):
+            if n < ac.merge_min_frames:
+                continue
+            ca, cb = self.counts.canonical(a), self.counts.canonical(b)
+            if ca == cb:
+                continue
+            if self.full:
+                # joint treatment: never merge segments whose semantics disagree
+                cls_a, cls_b = self.counts.segment_class(ca)[0], self.counts.segment_class(cb)[0]
+                if BACKGROUND not in (cls_a, cls_b) and cls_a != cls_b:
+                    continue
+            self.counts.merge_labels(max(ca, cb), min(ca, cb))
+            merged_segments += 1
+        self.merge_votes = {k: v for k, v in self.merge_votes.items() if v < ac.merge_min_frames}
+        merged_instances = 0
+        if self.full:
+            merged_instances = self._merge_instances(rc.instance_merge_ratio, rc.instance_merge_min_votes)
+        return {"segments": merged_segments, "instances": merged_instances}
+
+    def _merge_instances(self, ratio: float, min_votes: int) -> int:
+        """Eq. (5): merge p2 into p1 (same class c) when their shared-segment votes dominate."""
+        total: dict[tuple[int, int], int] = {}
+        shared: dict[tuple[int, int, int], int] = {}
+        for counts in self.counts.phi.values():
+            by_class: dict[int, list[tuple[int, int]]] = {}
+            for (c, p), n in counts.items():
+                total[(c, p)] = total.get((c, p), 0) + n
+                by_class.setdefault(c, []).append((p, n))
+            for c, lst in by_class.items():
+                if len(lst) < 2 or c not in self.classes or not self.classes[c].is_thing:
+                    continue
+                for i in range(len(lst)):
+                    for j in range(i + 1, len(lst)):
+                        (p1, n1), (p2, n2) = sorted([lst[i], lst[j]])
+                        key = (c, p1, p2)
+                        shared[key] = shared.get(key, 0) + n1 + n2
+        merged = 0
+        alias: dict[int, int] = {}
+
+        def root(p: int) -> int:
+            while p in alias:
+                p = alias[p]
+            return p
+
+        for (c, p1, p2), s in sorted(shared.items(), key=lambda kv: -kv[1]):
+            denom = total[(c, p1)] + total[(c, p2)]
+            if s >= ratio * denom and s > min_votes:
+                r1, r2 = root(p1), root(p2)
+                if r1 != r2:
+                    alias[max(r1, r2)] = min(r1, r2)
+                    merged += 1
+        for src in sorted(alias, reverse=True):
+            self.counts.merge_instances(src, root(src))
+        return merged
+
+    # ------------------------------------------------------------------ extraction
+    def entities(self, with_meshes: bool = True) -> list[MappedEntity]:
+        """Panoptic entities by Eq. (6), each with the mesh of its segments."""
+        self.regularize()
+        counts = self.counts
+        seg_class: dict[int, tuple[int, int]] = {}
+        seg_instance: dict[int, int] = {}
+        for label in list(counts.phi):
+            c, votes_c, _ = counts.segment_class(label)  # Eq. (6), first line
+            if c == BACKGROUND or votes_c == 0:
+                continue
+            if self.full:
+                votes = counts.instance_votes(label, c)  # Eq. (6), second line: argmax_p Phi(l, c_l, p)
+            else:
+                votes = counts.instance_votes(label, None)  # baseline: instance tracked apart from class
+            p = max(votes, key=lambda k: (votes[k], -k))
+            seg_class[label] = (c, votes_c)
+            seg_instance[label] = p
+        # group segments per entity: things by instance, stuff by class
+        groups: dict[int, list[int]] = {}
+        for label, p in seg_instance.items():
+            c = seg_class[label][0]
+            meta = self.classes.get(c)
+            key = p if (meta is None or meta.is_thing) else counts.instance_for_stuff(c)
+            groups.setdefault(key, []).append(label)
+        ents: list[MappedEntity] = []
+        lut_size = counts.next_label
+        entity_of_label = np.zeros(lut_size, np.int64)
+        for eid, labels in groups.items():
+            class_votes: dict[int, int] = {}
+            for label in labels:
+                for (c, _p), n in counts.phi[label].items():
+                    class_votes[c] = class_votes.get(c, 0) + n
+            c = max(class_votes, key=lambda k: (class_votes[k], -k))
+            meta = self.classes.get(c, ClassMeta(f"class_{c}", True, "rigid"))
+            conf = class_votes[c] / max(sum(class_votes.values()), 1)
+            revision = max(counts.last_update.get(label, 0) for label in labels)
+            ents.append(MappedEntity(eid, c, meta.name, eid if meta.is_thing else 0, meta.is_thing, meta.category,
+                                     float(conf), 0, int(revision)))
+            entity_of_label[labels] = eid
+        if with_meshes and ents:
+            self._attach_meshes(ents, entity_of_label)
+        min_v = self.config.extraction.min_entity_voxels
+        return [e for e in ents if not with_meshes or len(e.vertices) >= min_v]
+
+    def _attach_meshes(self, ents: list[MappedEntity], entity_of_label: np.ndarray) -> None:
+        v, f, vlab = self.tsdf.extract_mesh()
+        if len(f) == 0:
+            return
+        lut = self.counts.canonical_lut(len(entity_of_label))
+        canon = lut[np.clip(vlab, 0, len(lut) - 1)]
+        ent_v = np.where(canon < len(entity_of_label), entity_of_label[np.clip(canon, 0, len(entity_of_label) - 1)], 0)
+        ent_f = ent_v[f]
+        same = (ent_f[:, 0] == ent_f[:, 1]) & (ent_f[:, 1] == ent_f[:, 2]) & (ent_f[:, 0] > 0)
+        f, eid = f[same], ent_f[same, 0]
+        order = np.argsort(eid, kind="stable")
+        f, eid = f[order], eid[order]
+        starts = np.searchsorted(eid, [e.id for e in ents], side="left")
+        ends = np.searchsorted(eid, [e.id for e in ents], side="right")
+        for e, a, b in zip(ents, starts, ends, strict=True):
+            if b <= a:
+                continue
+            faces = f[a:b]
+            used, inv = np.unique(faces.ravel(), return_inverse=True)
+            e.vertices = v[used]
+            e.faces = inv.reshape(-1, 3)
+            e.num_voxels = int(len(used))
+
+    def full_mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The whole map's mesh with canonical vertex labels."""
+        v, f, vlab = self.tsdf.extract_mesh()
+        lut = self.counts.canonical_lut()
+        return v, f, lut[np.clip(vlab, 0, len(lut) - 1)]
+
+    # ------------------------------------------------------------------ persistence (no pickle)
+    def save(self, folder: str | Path) -> Path:
+        """Write `map.npz` (voxels + counts, numpy arrays only) and `map.json` (config, metadata)."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        arrays = {f"tsdf_{k}": v for k, v in self.tsdf.state().items()}
+        arrays.update({f"counts_{k}": v for k, v in self.counts.to_arrays().items()})
+        mv = np.array([(a, b, n) for (a, b), n in self.merge_votes.items()], np.int64).reshape(-1, 3)
+        arrays["merge_votes"] = mv
+        np.savez_compressed(folder / "map.npz", **arrays)
+        meta = {"format_version": MAP_FORMAT_VERSION, "config": asdict(self.config),
+                "frames_integrated": self.frames_integrated, "keyframes": self.keyframes,
+                "classes": {str(k): asdict(v) for k, v in self.classes.items()}}
+        (folder / "map.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
+        return folder / "map.npz"
+
+    @classmethod
+    def load(cls, folder: str | Path) -> PanopticMapper:
+        from scene_recon.config import from_dict
+
+        folder = Path(folder)
+        meta_path, npz_path = folder / "map.json", folder / "map.npz"
+        if not meta_path.is_file() or not npz_path.is_file():
+            raise FileNotFoundError(f"{folder} holds no saved map (map.json + map.npz)")
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        if meta.get("format_version") != MAP_FORMAT_VERSION:
+            raise ValueError(f"{meta_path}: unsupported map format {meta.get('format_version')!r}")
+        config = from_dict(MapperConfig, meta["config"])
+        classes = {int(k): ClassMeta(**v) for k, v in meta.get("classes", {}).items()}
+        mapper = cls(config, classes)
+        with np.load(npz_path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        mapper.tsdf.load_state({k[5:]: v for k, v in arrays.items() if k.startswith("tsdf_")})
+        mapper.counts = PanopticCounts.from_arrays({k[7:]: v for k, v in arrays.items() if k.startswith("counts_")})
+        mapper.merge_votes = {(int(a), int(b)): int(n) for a, b, n in arrays["merge_votes"]}
+        mapper.frames_integrated = int(meta.get("frames_integrated", 0))
+        mapper.keyframes = int(meta.get("keyframes", 0))
+        return mapper
