@@ -1,5 +1,5 @@
 """Subcommands of `scene-recon`; each module has `add_parser(subparsers)` and sets `func`."""
 
-from . import demo_cmd, generate_cmd, inspect_cmd, suite_cmd
+from . import demo_cmd, generate_cmd, inspect_cmd, map_cmd, suite_cmd
 
-COMMANDS = [demo_cmd, generate_cmd, suite_cmd, inspect_cmd]
+COMMANDS = [demo_cmd, generate_cmd, suite_cmd, inspect_cmd, map_cmd]

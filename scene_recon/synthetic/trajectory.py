@@ -154,14 +154,16 @@ class TrajectoryConfig:
     #: Hand wobble: smooth 3D position noise amplitude and time scale.
     wobble_m: float = 0.01
     wobble_interval_s: float = 0.5
-    #: Look-at targets: fixation time per target (+-25 %), minimum duration of the smooth turn to
+    #: Look-at targets (tuned so 300 frames see ~90 % of a 20-object room: most objects are
+    #: fixated briefly, as in a quick handheld scan): fixation time per target (+-25 %), minimum
+    #: duration of the smooth turn to
     #: the next one (longer for big turns, see the rate limits), preferred horizontal distance,
     #: random offset, and the height looked at when no points of interest are given.
-    target_dwell_s: float = 1.5
-    target_transition_s: float = 0.6
+    target_dwell_s: float = 0.6
+    target_transition_s: float = 0.4
     #: Score penalty per unit (1 - cos) of head turn to the next target (prefers nearby targets
     #: over ones behind the operator; 0 = any direction).
-    turn_penalty: float = 0.3
+    turn_penalty: float = 0.0
     #: Score penalty per earlier look at the same point of interest (favours covering new objects).
     revisit_penalty: float = 1.5
     preferred_target_distance_m: float = 2.5
@@ -171,7 +173,7 @@ class TrajectoryConfig:
     #: Pitch limits (negative = looking down) and angular-rate limits.
     min_pitch_deg: float = -50.0
     max_pitch_deg: float = 0.0
-    max_yaw_rate_deg_s: float = 80.0
+    max_yaw_rate_deg_s: float = 90.0
     max_pitch_rate_deg_s: float = 30.0
     #: Gaussian smoothing (std, seconds) of the view angles after rate limiting.
     angle_smoothing_s: float = 0.3
