@@ -34,11 +34,12 @@ def main(argv: list[str] | None = None) -> int:
     level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else logging.DEBUG
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     from panoptic_mapping.dataio.frame import DatasetError
+    from panoptic_mapping.segmentation.types import SegmentationError
     from scene_recon.config import ConfigError
 
     try:
         return int(args.func(args) or 0)
-    except (DatasetError, ConfigError, FileExistsError, FileNotFoundError) as exc:
+    except (DatasetError, ConfigError, SegmentationError, FileExistsError, FileNotFoundError) as exc:
         print(f"scene-recon {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # output piped into `head` and closed early
