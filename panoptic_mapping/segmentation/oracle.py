@@ -118,7 +118,7 @@ class OracleSegmenter(PanopticSegmenter):
 
     # ------------------------------------------------------------------ the noise model
     def _spoil(self, labels: np.ndarray, depth: np.ndarray | None, key: int) -> PanopticSegmentation:
-        gt = self._check_labels(labels)
+        gt, counts = self._check_labels(labels)
         shape = gt.shape
         nz = self.noise
         rng = np.random.default_rng([self.seed & _KEY_MASK, int(key) & _KEY_MASK])
@@ -153,7 +153,7 @@ class OracleSegmenter(PanopticSegmenter):
             info = self._thing_classes[int(rng.integers(len(self._thing_classes)))]
             candidates.append(SegmentCandidate(blob, info, self._score(rng, nz.spurious_score_mean)))
         paint = PaintConfig(nz.paint.overlap_threshold, round(nz.paint.min_area_px * scale * scale))
-        valid = gt != 0 if not gt.all() else None
+        valid = gt != 0 if counts[0] else None
         return assemble(shape, candidates, paint, valid=valid, rng=rng)
 
     def _spoil_thing(
@@ -178,7 +178,8 @@ class OracleSegmenter(PanopticSegmenter):
         if mask is None:
             return []
         if depth is not None and happens(nz.bleed_prob):
-            mask = bleed_onto_background(mask, depth, round(nz.bleed_radius_px * scale), nz.bleed_depth_gap_m)
+            radius = max(round(nz.bleed_radius_px * scale), 1)
+            mask = bleed_onto_background(mask, depth, radius, nz.bleed_depth_gap_m)
         parts: tuple[MaskCrop, ...] = (mask,)
         if area >= nz.split_min_area_px * scale * scale and happens(nz.split_prob):
             parts = split_along_line(mask, float(rng.uniform(0.0, math.pi))) or parts
@@ -195,7 +196,8 @@ class OracleSegmenter(PanopticSegmenter):
         nz = self.noise
         if nz.boundary_max_radius_px <= 0 or not happens(nz.boundary_prob):
             return mask
-        radius = round(int(rng.integers(1, nz.boundary_max_radius_px + 1)) * scale)
+        # radius drawn in this image's pixels, so an event always changes the outline (>= 1 px)
+        radius = int(rng.integers(1, max(round(nz.boundary_max_radius_px * scale), 1) + 1))
         return erode_or_dilate(mask, radius, dilate=bool(rng.random() < 0.5), shape=shape)
 
     def _score(self, rng: np.random.Generator, mean: float) -> float:
@@ -209,7 +211,8 @@ class OracleSegmenter(PanopticSegmenter):
         """Entity ids grouped by under-segmentation: touching same-class things merged at random."""
         ids = sorted(crops)
         p = min(self.noise.merge_prob * flicker, 1.0)
-        if p <= 0:
+        thing_classes = [self.entities[i].id for i in ids if self.entities[i].is_thing]
+        if p <= 0 or len(set(thing_classes)) == len(thing_classes):  # no two things of one class in view
             return [[i] for i in ids]
         parent = {i: i for i in ids}
 
@@ -228,21 +231,22 @@ class OracleSegmenter(PanopticSegmenter):
             groups.setdefault(root(i), []).append(i)
         return list(groups.values())
 
-    def _check_labels(self, labels: np.ndarray) -> np.ndarray:
+    def _check_labels(self, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """int32 view of the label image and its per-id pixel counts; unknown ids raise."""
         gt = np.asarray(labels)
-        if gt.ndim != 2 or gt.dtype.kind not in "iu":
-            raise SegmentationError(f"label image must be a 2D integer array, got {gt.dtype} {gt.shape}")
+        if gt.ndim != 2 or gt.dtype.kind not in "iu" or gt.size == 0:
+            raise SegmentationError(f"label image must be a non-empty 2D integer array, got {gt.dtype} {gt.shape}")
         gt = gt.astype(np.int32, copy=False)
-        if gt.size == 0:
-            raise SegmentationError("label image is empty")
-        lo, hi = int(gt.min()), int(gt.max())
-        if lo < 0 or hi >= self._known.size or not self._known[np.flatnonzero(np.bincount(gt.ravel())[1:]) + 1].all():
-            present = set(np.unique(gt).tolist()) - {0}
-            raise SegmentationError(
-                f"label image holds entity ids {sorted(present - set(self.entities))} that the ground truth "
-                f"does not know (known: {sorted(self.entities)}); is it the right scene?"
-            )
-        return gt
+        if int(gt.min()) >= 0 and int(gt.max()) < self._known.size:
+            counts = np.bincount(gt.ravel())
+            present = np.flatnonzero(counts[1:]) + 1
+            if self._known[present].all():
+                return gt, counts
+        present_ids = set(np.unique(gt).tolist()) - {0}
+        raise SegmentationError(
+            f"label image holds entity ids {sorted(present_ids - set(self.entities))} that the ground truth "
+            f"does not know (known: {sorted(self.entities)}); is it the right scene?"
+        )
 
 
 def load_ground_truth(path: str | Path) -> Any:

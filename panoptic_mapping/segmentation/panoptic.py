@@ -10,7 +10,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy import ndimage
 
 from .config import PaintConfig
 from .types import MaskCrop, PanopticSegmentation, Segment, SegmentCandidate
@@ -48,7 +47,7 @@ def assemble(
     merged = merge_stuff(candidates)
     things = sorted((c for c in merged if c.is_thing), key=lambda c: -c.score)
     stuff = sorted((c for c in merged if not c.is_thing), key=lambda c: -c.score)
-    painted: list[SegmentCandidate] = []
+    painted: list[tuple[SegmentCandidate, tuple[int, int, int, int], int]] = []  # candidate, box, area
     for is_thing, group in ((True, things), (False, stuff)):
         for cand in group:
             m = _clip(cand.mask, shape)
@@ -63,8 +62,10 @@ def assemble(
                 continue
             if is_thing and n_free < cfg.overlap_threshold * n_own:
                 continue
-            painted.append(cand)
-            region[free] = len(painted)
+            region[free] = len(painted) + 1
+            tight = MaskCrop(m.x, m.y, free).tight() or m  # never empty here: n_free > 0
+            painted.append((cand, (tight.x, tight.y, tight.width, tight.height), n_free))
+    # Later candidates only take free pixels, so each painted area and box is final when painted.
     return _finish(labels, painted, rng)
 
 
@@ -81,33 +82,28 @@ def _clip(mask: MaskCrop, shape: tuple[int, int]) -> MaskCrop | None:
 
 
 def _finish(
-    labels: np.ndarray, painted: list[SegmentCandidate], rng: np.random.Generator | None
+    labels: np.ndarray,
+    painted: list[tuple[SegmentCandidate, tuple[int, int, int, int], int]],
+    rng: np.random.Generator | None,
 ) -> PanopticSegmentation:
     n = len(painted)
-    if n == 0:
-        return PanopticSegmentation(labels, [])
+    n_things = sum(c.is_thing for c, _, _ in painted)
     if rng is not None:
-        new_ids = rng.permutation(n).astype(np.int32) + 1  # painted k -> new_ids[k - 1]
-        lut = np.concatenate([[0], new_ids]).astype(np.int32)
-        labels = lut[labels]
+        new_ids = rng.permutation(n).astype(np.int32) + 1  # painted k (label k + 1) -> new_ids[k]
+        labels = np.take(np.concatenate([[0], new_ids]).astype(np.int32), labels)
+        instance_ids = rng.permutation(n_things) + 1
     else:
         new_ids = np.arange(1, n + 1, dtype=np.int32)
-    n_things = sum(c.is_thing for c in painted)
-    instance_ids = (rng.permutation(n_things) + 1) if rng is not None else np.arange(1, n_things + 1)
-    areas = np.bincount(labels.ravel(), minlength=n + 1)
-    boxes = ndimage.find_objects(labels, max_label=n)
+        instance_ids = np.arange(1, n_things + 1)
     segments = []
     k_thing = 0
-    for k, cand in enumerate(painted):
-        sid = int(new_ids[k])
-        sl = boxes[sid - 1]
-        box = (sl[1].start, sl[0].start, sl[1].stop - sl[1].start, sl[0].stop - sl[0].start)
+    for k, (cand, box, area) in enumerate(painted):
         inst = 0
         if cand.is_thing:
             inst = int(instance_ids[k_thing])
             k_thing += 1
         info = cand.class_info
-        segments.append(Segment(sid, info.id, info.name, info.is_thing, inst, float(cand.score),
-                                tuple(int(v) for v in box), int(areas[sid])))
+        segments.append(Segment(int(new_ids[k]), info.id, info.name, info.is_thing, inst, float(cand.score),
+                                box, area))
     segments.sort(key=lambda s: s.id)
     return PanopticSegmentation(labels, segments)
