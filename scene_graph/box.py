@@ -1,0 +1,143 @@
+"""Gravity-aligned oriented 3D box B(p, q, s) of a graph node (paper Sec. 2.1) and its exact IoU.
+
+The orientation q is a pure yaw about the map's z axis (z is against gravity), so a box is a
+rotated rectangle (its footprint) times a z interval. Volumes, overlaps and IoU are exact:
+rectangle intersection by convex clipping times the z overlap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .polygon import EPS, convex_intersection_area, rectangle
+
+
+@dataclass(frozen=True, eq=False)
+class GravityBox:
+    """``center`` (map frame), ``size`` along the box's own x, y, z and ``yaw`` about +z (rad)."""
+
+    center: NDArray[np.float64]
+    size: NDArray[np.float64]
+    yaw: float = 0.0
+
+    def __post_init__(self) -> None:
+        c = np.array(self.center, dtype=np.float64).reshape(3)
+        s = np.array(self.size, dtype=np.float64).reshape(3)
+        if not (np.all(np.isfinite(c)) and np.all(np.isfinite(s)) and np.isfinite(self.yaw)):
+            raise ValueError(f"box must be finite: center={c.tolist()} size={s.tolist()} yaw={self.yaw}")
+        if np.any(s < 0.0):
+            raise ValueError(f"box size must be non-negative, got {s.tolist()}")
+        c.setflags(write=False)
+        s.setflags(write=False)
+        object.__setattr__(self, "center", c)
+        object.__setattr__(self, "size", s)
+        object.__setattr__(self, "yaw", float(self.yaw))
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def z_min(self) -> float:
+        return float(self.center[2] - 0.5 * self.size[2])
+
+    @property
+    def z_max(self) -> float:
+        return float(self.center[2] + 0.5 * self.size[2])
+
+    @property
+    def volume(self) -> float:
+        return float(np.prod(self.size))
+
+    @property
+    def footprint_area(self) -> float:
+        return float(self.size[0] * self.size[1])
+
+    def corners_xy(self) -> NDArray[np.float64]:
+        """(4, 2) counter-clockwise footprint corners."""
+        return rectangle(self.center[:2], self.size[:2], self.yaw)
+
+    def corners(self) -> NDArray[np.float64]:
+        """(8, 3) corners: the 4 bottom ones (CCW), then the 4 top ones."""
+        xy = self.corners_xy()
+        return np.r_[np.c_[xy, np.full(4, self.z_min)], np.c_[xy, np.full(4, self.z_max)]]
+
+    def aabb(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Axis-aligned (lo, hi) of the box."""
+        xy = self.corners_xy()
+        return np.r_[xy.min(0), self.z_min], np.r_[xy.max(0), self.z_max]
+
+    def rotation(self) -> NDArray[np.float64]:
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    def pose(self) -> NDArray[np.float64]:
+        """4x4 box frame -> map (origin at the centre)."""
+        t = np.eye(4)
+        t[:3, :3] = self.rotation()
+        t[:3, 3] = self.center
+        return t
+
+    def bottom_pose(self) -> NDArray[np.float64]:
+        """4x4 frame at the centre of the bottom face (a natural link origin for a standing object)."""
+        t = self.pose()
+        t[2, 3] = self.z_min
+        return t
+
+    def to_local_xy(self, xy: ArrayLike) -> NDArray[np.float64]:
+        """Map-frame (N, 2) points in the box's footprint frame (centre origin, box axes)."""
+        p = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - self.center[:2]
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        return np.c_[c * p[:, 0] + s * p[:, 1], -s * p[:, 0] + c * p[:, 1]]
+
+    def with_z_range(self, z_lo: float, z_hi: float) -> GravityBox:
+        """The same footprint over another vertical interval."""
+        lo, hi = min(z_lo, z_hi), max(z_lo, z_hi)
+        return GravityBox(np.r_[self.center[:2], 0.5 * (lo + hi)], np.r_[self.size[:2], hi - lo], self.yaw)
+
+    # ------------------------------------------------------------------ overlap
+    def footprint_intersection(self, other: GravityBox) -> float:
+        """Exact area of the intersection of the two footprints."""
+        if self.footprint_area <= EPS or other.footprint_area <= EPS:
+            return 0.0
+        return convex_intersection_area(self.corners_xy(), other.corners_xy())
+
+    def z_overlap(self, other: GravityBox) -> float:
+        return max(0.0, min(self.z_max, other.z_max) - max(self.z_min, other.z_min))
+
+    def intersection_volume(self, other: GravityBox) -> float:
+        dz = self.z_overlap(other)
+        return 0.0 if dz <= 0.0 else self.footprint_intersection(other) * dz
+
+    def iou(self, other: GravityBox) -> float:
+        """Exact 3D IoU (0 when either box has no volume, never NaN)."""
+        inter = self.intersection_volume(other)
+        union = self.volume + other.volume - inter
+        return float(inter / union) if union > EPS and inter > 0.0 else 0.0
+
+    # ------------------------------------------------------------------ io
+    def to_dict(self) -> dict[str, Any]:
+        return {"center": self.center.tolist(), "size": self.size.tolist(), "yaw": self.yaw}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> GravityBox:
+        return cls(d["center"], d["size"], float(d.get("yaw", 0.0)))
+
+    @classmethod
+    def from_any(cls, box: Any) -> GravityBox:
+        """From any object with center/size/yaw (the ground-truth or CAD OrientedBox types)."""
+        return cls(box.center, box.size, float(box.yaw))
+
+
+def iou_matrix(pred: list[GravityBox], gt: list[GravityBox]) -> NDArray[np.float64]:
+    """(P, G) exact IoU; pairs whose axis-aligned bounds do not meet skip the exact test."""
+    out = np.zeros((len(pred), len(gt)))
+    if not pred or not gt:
+        return out
+    plo, phi = (np.array(a) for a in zip(*(b.aabb() for b in pred), strict=True))
+    glo, ghi = (np.array(a) for a in zip(*(b.aabb() for b in gt), strict=True))
+    meet = np.all((plo[:, None] <= ghi[None]) & (glo[None] <= phi[:, None]), axis=2)
+    for i, j in zip(*np.nonzero(meet), strict=True):
+        out[i, j] = pred[i].iou(gt[j])
+    return out

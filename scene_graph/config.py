@@ -1,0 +1,163 @@
+"""Tunables of the contact-graph builder (paper Sec. 2), one dataclass per step.
+
+Defaults are the paper's values where it gives them (RANSAC 3 cm / 200 iterations / 10 %,
+a_th = -0.9, b_th = 0.5, accept support at score > 0.2, REFERENCE.md) and measured choices
+elsewhere; ``config/scene_graph.yaml`` holds the same keys (``load_scene_graph_config``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from scene_recon.config import CONFIG_DIR, ConfigError, load_config
+
+#: Default YAML file of the contact-graph builder.
+DEFAULT_CONFIG_FILE = CONFIG_DIR / "scene_graph.yaml"
+
+
+@dataclass
+class BoxConfig:
+    """Gravity-aligned minimal box fitting (Sec. 2.2, Malandain and Boissonnat 2002)."""
+
+    #: Percent of points trimmed on each side (xy in the rectangle frame, and z) against outliers;
+    #: 0 keeps the exact extent (ground-truth meshes), ~0.5 suits noisy mapped meshes.
+    trim_percent: float = 0.0
+    #: Mesh surface samples added to the vertices before trimming (trimming needs an area-uniform
+    #: cloud; a box mesh has 8 vertices). 0 uses the vertices only.
+    surface_samples: int = 0
+
+
+@dataclass
+class PlaneConfig:
+    """Surface planes: iterative RANSAC (paper) plus height groups of upward faces."""
+
+    #: RANSAC inlier distance (m), iterations and stop fraction (paper: 3 cm, 200, 10 %).
+    ransac_distance: float = 0.03
+    ransac_iterations: int = 200
+    ransac_min_fraction: float = 0.10
+    #: Surface samples RANSAC runs on (the cost is samples x iterations per plane).
+    ransac_samples: int = 1000
+    #: Small objects: the RANSAC threshold shrinks to this share of the box diagonal (a cup would
+    #: otherwise be one plane), as in the CAD feature extractor.
+    ransac_relative_distance: float = 0.02
+    max_planes: int = 12
+    #: Horizontal support planes from upward faces grouped by height. RANSAC's 10 % rule drops
+    #: small shelf levels and cabinet tops that carry objects; grouping keeps every level with at
+    #: least ``min_support_area`` of upward surface.
+    height_groups: bool = True
+    #: Heights of upward faces within this distance (m) of a group's mode form one plane.
+    height_tolerance: float = 0.015
+    min_support_area: float = 0.004
+    max_height_groups: int = 24
+    #: Faces of a plane's support region: within this distance (m) of the plane ...
+    region_distance: float = 0.02
+    #: ... and with normal . plane normal above this cosine (mesh input only).
+    region_normal_cos: float = 0.8
+    seed: int = 0
+
+
+@dataclass
+class SupportConfig:
+    """Support inference (Eqs. (1)-(3)) and its fallbacks (Sec. 2.2, Sec. 6.5)."""
+
+    #: Eq. (1): a supporting plane needs n . g <= a_th with g = (0, 0, -1).
+    a_th: float = -0.9
+    #: Eq. (2): contact-area ratio of a stable support.
+    b_th: float = 0.5
+    #: A support is accepted at score > accept_score (Eq. (3)), else the fallback applies.
+    accept_score: float = 0.2
+    #: Eq. (3) uses 1 - min(1, |D| / distance_scale); the paper's value is 1 m.
+    distance_scale: float = 1.0
+    #: Candidate planes may lie this far (m) above the child's box bottom (mesh noise, partial
+    #: bottoms) and at most max_gap below it.
+    above_tolerance: float = 0.04
+    max_gap: float = 1.0
+    #: Footprint grid for Eq. (2): cells per side (bounded) and the target cell size (m).
+    grid_max_cells: int = 16
+    grid_cell_size: float = 0.01
+    #: Invisible supporting plane: candidate box top within this distance (m) of the child's
+    #: bottom, and footprint overlap / child footprint >= b_th.
+    invisible_max_gap: float = 0.08
+    invisible_planes: bool = True
+    #: Fallback: a child whose bottom is within this height (m) of the floor goes to the floor;
+    #: otherwise the nearest wall within wall_distance (m) (an object hung on or leaning against
+    #: a wall, Sec. 6.5), otherwise the floor (the root when there is no floor).
+    floor_height: float = 0.15
+    wall_distance: float = 0.15
+    #: Classes of layout nodes.
+    floor_classes: list[str] = field(default_factory=lambda: ["floor"])
+    wall_classes: list[str] = field(default_factory=lambda: ["wall"])
+    ceiling_classes: list[str] = field(default_factory=lambda: ["ceiling"])
+
+
+@dataclass
+class RefineConfig:
+    """Box refinement (Fig. 3d): extend the box bottom down to the supporting plane."""
+
+    enabled: bool = True
+    #: Only move a bottom by at most this much (m): a far plane means a wrong support, not an
+    #: occluded bottom.
+    max_extension: float = 1.0
+    #: Also lift a bottom that pokes below the plane (noise) up to it, so Eq. (1) holds exactly.
+    lift_bottoms: bool = True
+
+
+@dataclass
+class ProximalConfig:
+    """Proximal relations: pairs of non-supporting entities with overlapping boxes (Sec. 2.1)."""
+
+    #: Boxes are inflated by this margin (m) before the overlap test (contacts that touch).
+    margin: float = 0.02
+    #: Broad phase: "sweep" (sort-and-prune on AABBs) or "all_pairs" (naive baseline).
+    broadphase: str = "sweep"
+    #: Layout nodes take part (furniture against walls); off keeps object-object pairs only.
+    include_layout: bool = True
+
+
+@dataclass
+class MatchConfig:
+    """Matching predicted to ground-truth nodes for the metrics (Sec. 5.3)."""
+
+    #: Minimum 3D box IoU for a predicted node to correspond to a ground-truth node.
+    min_iou: float = 0.1
+    #: Added to the (1 - IoU) cost of a cross-class pair (allowed, counted as a substitution).
+    class_mismatch_cost: float = 1.0
+    #: Allow matches across classes at all (a mislabelled entity is a substitution).
+    allow_class_mismatch: bool = True
+    #: IoU threshold of the box mAP (Table 4).
+    map_iou: float = 0.5
+
+
+@dataclass
+class SceneGraphConfig:
+    """Everything the contact-graph builder reads; ``config/scene_graph.yaml`` has the same keys."""
+
+    box: BoxConfig = field(default_factory=BoxConfig)
+    planes: PlaneConfig = field(default_factory=PlaneConfig)
+    support: SupportConfig = field(default_factory=SupportConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
+    proximal: ProximalConfig = field(default_factory=ProximalConfig)
+    match: MatchConfig = field(default_factory=MatchConfig)
+    #: Class table file (empty: the repository's config/classes.yaml).
+    class_table: str = ""
+    #: Support-joint table file (empty: config/support_joints.yaml).
+    support_joints: str = ""
+
+    def __post_init__(self) -> None:
+        if self.proximal.broadphase not in ("sweep", "all_pairs"):
+            raise ConfigError(f"proximal.broadphase must be 'sweep' or 'all_pairs', got {self.proximal.broadphase!r}")
+        if not -1.0 <= self.support.a_th <= 0.0:
+            raise ConfigError(f"support.a_th must be in [-1, 0], got {self.support.a_th}")
+        if not 0.0 <= self.box.trim_percent < 50.0:
+            raise ConfigError(f"box.trim_percent must be in [0, 50), got {self.box.trim_percent}")
+        if self.support.distance_scale <= 0.0:
+            raise ConfigError("support.distance_scale must be > 0")
+
+
+def load_scene_graph_config(path: str | Path | None = None,
+                            overrides: dict[str, object] | None = None) -> SceneGraphConfig:
+    """Read the builder config (default ``config/scene_graph.yaml`` when it exists)."""
+    if path is None and DEFAULT_CONFIG_FILE.is_file():
+        path = DEFAULT_CONFIG_FILE
+    return load_config(SceneGraphConfig, path, overrides)

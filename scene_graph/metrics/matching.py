@@ -1,0 +1,80 @@
+"""Which predicted node is which ground-truth node: class + 3D box overlap, Hungarian assignment.
+
+Predicted and annotated graphs share no ids (a mapper numbers its entities as it likes), so the
+metrics first pair nodes by geometry. The similarity is the exact box IoU; a pair qualifies when
+IoU >= ``min_iou`` or when one box lies mostly inside the other (containment >= 0.5: a partially
+observed wall or cabinet has a small box inside the true one). Cross-class pairs may match at an
+extra cost and count as label substitutions (a wrong detection, Sec. 5.3). The roots always match.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from ..box import GravityBox, iou_matrix
+from ..config import MatchConfig
+from ..graph import ContactGraph
+
+#: A pair also qualifies when its intersection covers this share of the smaller box.
+MIN_CONTAINMENT = 0.5
+#: Cost of a forbidden pair in the assignment (larger than any allowed cost).
+FORBIDDEN = 1e6
+
+
+@dataclass
+class NodeMatching:
+    """pred id -> gt id for matched nodes (roots included), the IoU of each pair, and substitutions."""
+
+    pred_to_gt: dict[int, int] = field(default_factory=dict)
+    iou: dict[int, float] = field(default_factory=dict)
+    substituted: set[int] = field(default_factory=set)
+
+    @property
+    def gt_to_pred(self) -> dict[int, int]:
+        return {g: p for p, g in self.pred_to_gt.items()}
+
+
+def _containment(a: GravityBox, b: GravityBox) -> float:
+    """Intersection volume over the smaller box's volume (0 for a box without volume)."""
+    small = min(a.volume, b.volume)
+    return a.intersection_volume(b) / small if small > 0.0 else 0.0
+
+
+def match_nodes(pred: ContactGraph, gt: ContactGraph, cfg: MatchConfig | None = None,
+                unrefined: bool = False) -> NodeMatching:
+    """Hungarian matching of non-root nodes on (1 - IoU) + class mismatch cost."""
+    cfg = cfg or MatchConfig()
+    out = NodeMatching({pred.root_id: gt.root_id}, {pred.root_id: 1.0})
+    p_ids = [i for i, n in pred.nodes.items() if i != pred.root_id and n.box is not None]
+    g_ids = [i for i, n in gt.nodes.items() if i != gt.root_id and n.box is not None]
+    if not p_ids or not g_ids:
+        return out
+
+    def box_of(graph: ContactGraph, i: int) -> GravityBox:
+        n = graph.nodes[i]
+        return (n.box_unrefined or n.box) if unrefined else n.box  # type: ignore[return-value]
+
+    pb = [box_of(pred, i) for i in p_ids]
+    gb = [box_of(gt, i) for i in g_ids]
+    iou = iou_matrix(pb, gb)
+    # Containment only where the boxes intersect at all.
+    contain = np.zeros_like(iou)
+    for i, j in np.argwhere(iou > 0.0):
+        contain[i, j] = _containment(pb[i], gb[j])
+    same = np.array([[pred.nodes[p].class_name == gt.nodes[g].class_name for g in g_ids] for p in p_ids])
+    ok = (iou >= cfg.min_iou) | (contain >= MIN_CONTAINMENT)
+    if not cfg.allow_class_mismatch:
+        ok &= same
+    cost = np.where(ok, 1.0 - iou + np.where(same, 0.0, cfg.class_mismatch_cost), FORBIDDEN)
+    rows, cols = linear_sum_assignment(cost)
+    for r, c in zip(rows, cols, strict=True):
+        if cost[r, c] >= FORBIDDEN:
+            continue
+        out.pred_to_gt[p_ids[r]] = g_ids[c]
+        out.iou[p_ids[r]] = float(iou[r, c])
+        if not same[r, c]:
+            out.substituted.add(p_ids[r])
+    return out

@@ -1,0 +1,28 @@
+"""Box refinement (paper Sec. 2.2, Fig. 3d): make Eq. (1) hold exactly, D(v_c, pi_p) = 0.
+
+A partially reconstructed object (chair legs unseen) has a box floating above its supporting
+plane. Once the support is known, the box bottom moves to the plane's height under the box
+centre and the top stays, completing the unseen lower part. A plane further away than
+``max_extension`` is left alone (it points at a wrong support, not at an occluded bottom).
+"""
+
+from __future__ import annotations
+
+from .box import GravityBox
+from .config import RefineConfig
+from .support import SupportDecision
+
+
+def refine_box(box: GravityBox, decision: SupportDecision | None, cfg: RefineConfig) -> GravityBox:
+    """The box with its bottom on the supporting plane of ``decision`` (unchanged without one)."""
+    if not cfg.enabled or decision is None or decision.plane is None:
+        return box
+    h = decision.plane.height_at(box.center[:2])
+    if h != h:  # NaN: a vertical plane has no height
+        return box
+    move = box.z_min - h
+    if abs(move) > cfg.max_extension or h >= box.z_max:
+        return box
+    if move < 0.0 and not cfg.lift_bottoms:
+        return box
+    return box.with_z_range(h, box.z_max)
