@@ -6,9 +6,10 @@ mapping evaluations, that support is the *observed* ground-truth surface:
 
 1. Every ground-truth mesh is sampled uniformly (``MetricsConfig.sample_spacing``: one point per
    ``spacing**2`` of area, deterministic seed).
-2. Points where two ground-truth entities touch (within ``contact_distance`` of another entity: the
-   bottom of a cup on a table, the back of a cabinet against a wall) are dropped: no camera can see
-   them, and a reconstruction would otherwise be blamed for labelling them as the neighbour.
+2. Points whose outside is blocked by another ground-truth entity within ``contact_distance`` (the
+   bottom of a cup on a table, the table under it, the back of a cabinet 1 cm in front of a wall) are
+   dropped: no camera can see them, and a reconstruction would otherwise be blamed for labelling them
+   as the neighbour.
 3. Points farther than ``observed_distance`` from the reconstruction (the union of all predicted
    meshes) are dropped: the robot never observed them (outer faces of walls, unvisited corners).
 4. Each remaining point takes the predicted entity of the nearest predicted surface within
@@ -54,6 +55,8 @@ PAPER_CLASSES: tuple[str, ...] = ("wall", "floor", "bed", "table", "chair", "mon
 VOID = -1
 #: Reported qualities are percentages.
 PERCENT = 100.0
+#: Contact rays start this far (m) behind the surface, so that exactly touching faces are hit.
+CONTACT_RAY_BACKOFF = 1e-3
 
 
 @dataclass(frozen=True)
@@ -62,7 +65,7 @@ class MetricsConfig:
 
     sample_spacing: float = 0.02  # ground-truth surface sampling: one point per spacing**2 of area
     seed: int = 0  # sampling seed: the same inputs always give the same numbers
-    contact_distance: float = 0.02  # drop GT points this close to another GT entity (0 disables)
+    contact_distance: float = 0.02  # drop GT points whose outside is blocked this close by another GT entity
     observed_distance: float = 0.05  # GT points farther than this from the reconstruction were never observed
     transfer_distance: float = 0.05  # a GT point takes the label of the nearest predicted surface within this
     min_gt_points: int = 25  # GT entities with fewer observed points were not seen: void, not misses
@@ -71,6 +74,7 @@ class MetricsConfig:
     iou_threshold: float = 0.5  # match when IoU is strictly greater
     void_overlap: float = 0.5  # unmatched predictions with more than this share of void points are not FPs
     prefilter_spacing: float = 0.05  # speed only: grid of the KD-tree that skips far-away exact queries
+    prefilter_min_triangles: int = 100_000  # speed only: coarser maps are queried exactly right away
 
     def __post_init__(self) -> None:
         for name in ("sample_spacing", "prefilter_spacing"):
@@ -182,8 +186,9 @@ def _triangle_areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 
 def sample_surface_points(meshes: Sequence[tuple[np.ndarray, np.ndarray]], spacing: float,
-                          seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Uniform area-weighted samples of all meshes at once: (points (N, 3), owner mesh index (N,)).
+                          seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Uniform area-weighted samples of all meshes at once: points (N, 3), owner mesh index (N,), and the
+    unit normal of the sampled triangle (N, 3).
 
     Each triangle gets ``floor(area / spacing**2 + u)`` points (u uniform in [0, 1)): unbiased, and
     far less clumpy than drawing triangles at random. Points come out grouped by owner, in order.
@@ -195,15 +200,17 @@ def sample_surface_points(meshes: Sequence[tuple[np.ndarray, np.ndarray]], spaci
             tris.append(v[f])
             owners.append(np.full(len(f), i, np.int64))
     if not tris:
-        return np.zeros((0, 3)), np.zeros(0, np.int64)
+        return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3))
     tri, tri_owner = np.concatenate(tris), np.concatenate(owners)
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    count = np.floor(area / spacing**2 + rng.random(len(tri))).astype(np.int64)
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    double_area = np.linalg.norm(cross, axis=1)
+    normal = np.divide(cross, double_area[:, None], out=np.zeros_like(cross), where=double_area[:, None] > 0)
+    count = np.floor(0.5 * double_area / spacing**2 + rng.random(len(tri))).astype(np.int64)
     which = np.repeat(np.arange(len(tri)), count)
     r1, r2 = np.sqrt(rng.random(len(which))), rng.random(len(which))
     a, b, c = tri[which, 0], tri[which, 1], tri[which, 2]
     points = (1 - r1)[:, None] * a + (r1 * (1 - r2))[:, None] * b + (r1 * r2)[:, None] * c
-    return points, tri_owner[which]
+    return points, tri_owner[which], normal[which]
 
 
 def _barycentric_grid(n: int) -> np.ndarray:
@@ -231,8 +238,13 @@ def _covering_points(v: np.ndarray, f: np.ndarray, radius: float) -> np.ndarray:
 
 def _voxel_downsample(points: np.ndarray, cell: float) -> np.ndarray:
     """One point per occupied grid cell (moves coverage by at most one cell diagonal)."""
+    if not len(points):
+        return points
     keys = np.floor(points / cell).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)
+    keys -= keys.min(0)
+    span = keys.max(0) + 1
+    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]  # one int64 per cell: fast unique
+    _, first = np.unique(flat, return_index=True)
     return points[first]
 
 
@@ -240,8 +252,8 @@ class SurfaceIndex:
     """Exact nearest-surface queries against a set of meshes, each tagged with an owner index.
 
     Open3D's closest-point query is exact but slow for points far from a dense mesh (it starts with an
-    unbounded search radius), so a KD-tree over covering points first discards points that cannot be
-    within the query distance; only the rest get the exact query.
+    unbounded search radius). With `prefilter_spacing`, a KD-tree over points covering the meshes first
+    discards points that cannot be within the query distance; only the rest get the exact query.
     """
 
     def __init__(self, meshes: Sequence[tuple[np.ndarray, np.ndarray]], owners: Sequence[int],
@@ -261,7 +273,7 @@ class SurfaceIndex:
             if prefilter_spacing:
                 cover.append(_covering_points(v, f, prefilter_spacing))
         self.empty = not geometry_owner
-        self._owner_of = np.full(max(geometry_owner, default=-1) + 2, VOID, np.int64)
+        self._owner_of = np.full(max(geometry_owner, default=-1) + 1, VOID, np.int64)  # Open3D geometry id -> owner
         for gid, owner in geometry_owner.items():
             self._owner_of[gid] = owner
         self._kdtree = None
@@ -269,9 +281,9 @@ class SurfaceIndex:
         if cover and prefilter_spacing:
             from scipy.spatial import cKDTree
 
-            cell = prefilter_spacing / 2
-            self._kdtree = cKDTree(_voxel_downsample(np.concatenate(cover), cell))
-            self._slack = prefilter_spacing + cell * math.sqrt(3)
+            # covering radius `prefilter_spacing`, plus what thinning to one point per cell moves
+            self._kdtree = cKDTree(_voxel_downsample(np.concatenate(cover), prefilter_spacing))
+            self._slack = prefilter_spacing * (1 + math.sqrt(3))
 
     def nearest(self, points: np.ndarray, max_distance: float) -> tuple[np.ndarray, np.ndarray]:
         """(distance, owner) of the nearest surface per point; (inf, VOID) beyond `max_distance`."""
@@ -289,7 +301,7 @@ class SurfaceIndex:
         res = self._scene.compute_closest_points(self._o3d.core.Tensor(query))
         d = np.linalg.norm(res["points"].numpy() - query, axis=1).astype(np.float64)
         gid = res["geometry_ids"].numpy().astype(np.int64)
-        ok = (d <= max_distance) & (gid < len(self._owner_of) - 1)
+        ok = (d <= max_distance) & (gid < len(self._owner_of))  # also drops Open3D's INVALID_ID
         dist[idx[ok]] = d[ok]
         owner[idx[ok]] = self._owner_of[gid[ok]]
         return dist, owner
@@ -301,13 +313,19 @@ def _aabbs(meshes: Sequence[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray,
     return lo, hi
 
 
-def contact_mask(points: np.ndarray, owner: np.ndarray, meshes: Sequence[tuple[np.ndarray, np.ndarray]],
-                 distance: float) -> np.ndarray:
-    """True for points within `distance` of a mesh other than their own (hidden contact surfaces).
+def contact_mask(points: np.ndarray, normals: np.ndarray, owner: np.ndarray,
+                 meshes: Sequence[tuple[np.ndarray, np.ndarray]], distance: float) -> np.ndarray:
+    """True for points whose outside is blocked by another mesh within `distance` (hidden contacts).
 
-    Only neighbours whose bounding boxes come within `distance` are queried, and only with the points
-    inside those boxes, so this costs little beyond one exact query per point near a contact.
+    A ray leaves each point along its outward normal, starting `CONTACT_RAY_BACKOFF` behind the surface
+    so that a coplanar touching face (cup bottom on a table top) is hit too. Unlike a plain distance
+    test this keeps the visible top of a thin book lying on a table while dropping its bottom, the
+    table under it, and the back of a cabinet standing 1 cm in front of a wall (and that wall patch).
+    Only meshes whose bounding boxes come within `distance` are cast against, and only with the points
+    inside those boxes. Assumes outward-facing triangle winding (as trimesh primitives have).
     """
+    import open3d as o3d
+
     hidden = np.zeros(len(points), bool)
     if distance <= 0 or not len(points):
         return hidden
@@ -329,9 +347,15 @@ def contact_mask(points: np.ndarray, owner: np.ndarray, meshes: Sequence[tuple[n
             inside |= np.all((p >= lo_x[j]) & (p <= hi_x[j]), axis=1)
         if not inside.any():
             continue
-        index = SurfaceIndex([meshes[j] for j in others], list(others))
-        d, _ = index.nearest(p[inside], distance)
-        hidden[s + np.flatnonzero(inside)[np.isfinite(d)]] = True
+        scene = o3d.t.geometry.RaycastingScene()
+        for j in others:
+            v, f = meshes[j]
+            scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, np.float32)),
+                                o3d.core.Tensor(np.ascontiguousarray(f, np.uint32)))
+        n = normals[s:e][inside]
+        rays = np.hstack([p[inside] - CONTACT_RAY_BACKOFF * n, n]).astype(np.float32)
+        t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        hidden[s + np.flatnonzero(inside)[t_hit <= distance + CONTACT_RAY_BACKOFF]] = True
     return hidden
 
 
@@ -528,13 +552,14 @@ def evaluate_panoptic_map(predictions: Sequence[MappedEntity], ground_truth: Ite
     classes = None if classes is None else tuple(classes)
     gt = list(getattr(ground_truth, "entities", ground_truth))
     gt_meshes = [_mesh_arrays(e.mesh) for e in gt]
-    points, owner = sample_surface_points(gt_meshes, cfg.sample_spacing, cfg.seed)
+    points, owner, normals = sample_surface_points(gt_meshes, cfg.sample_spacing, cfg.seed)
     n_sampled = len(points)
-    visible = ~contact_mask(points, owner, gt_meshes, cfg.contact_distance)
+    visible = ~contact_mask(points, normals, owner, gt_meshes, cfg.contact_distance)
     points, owner = points[visible], owner[visible]
 
     pred_meshes = [_entity_arrays(e) for e in predictions]
-    index = SurfaceIndex(pred_meshes, range(len(predictions)), cfg.prefilter_spacing)
+    dense = sum(len(f) for _, f in pred_meshes) >= cfg.prefilter_min_triangles
+    index = SurfaceIndex(pred_meshes, range(len(predictions)), cfg.prefilter_spacing if dense else None)
     dist, nearest = index.nearest(points, max(cfg.observed_distance, cfg.transfer_distance))
     observed = dist <= cfg.observed_distance
     owner = owner[observed]
@@ -553,8 +578,8 @@ def evaluate_panoptic_map(predictions: Sequence[MappedEntity], ground_truth: Ite
         _included(pred_names, classes), [e.id for e in predictions], [e.confidence for e in predictions],
         pred_areas)
 
-    gt_labels = gt_seg_of[owner] if len(owner) else np.zeros(0, np.int64)
-    pred_labels = np.where(nearest >= 0, pred_seg_of[np.maximum(nearest, 0)], VOID) if len(nearest) else nearest
+    gt_labels = gt_seg_of[owner]
+    pred_labels = np.append(pred_seg_of, VOID)[nearest]  # nearest == VOID picks the appended VOID
     result = evaluate_point_labels(gt_labels, pred_labels, gt_segments, pred_segments, cfg)
     has_geometry = np.array([len(f) > 0 for _, f in gt_meshes], bool)
     result.counts.update({
