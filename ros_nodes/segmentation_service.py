@@ -1,0 +1,263 @@
+"""`segmentation_service`: serves `scene_recon_interfaces/srv/SegmentImage` on `segment_image`.
+
+A thin adapter around `panoptic_mapping.segmentation`: the backend (`onnx`, `oracle`, `none`) is
+picked by ROS parameters, images go through `ros_nodes.conversions`, and every failure on a request
+(bad encoding, empty image, no ground truth for the stamp) is answered with success=false and a
+message while the node keeps serving.
+
+Parameters (defaults from `config/segmentation.yaml` when present, else the dataclass defaults):
+  config          segmentation YAML to start from ("" = config/segmentation.yaml)
+  backend         onnx | oracle | none
+  model_config    onnx: model config YAML (config/segmentation/*.yaml)
+  ground_truth    oracle: a generated scene's <bag>_groundtruth folder (or the bag folder)
+  noise_level     oracle: clean | default | hard (levels of the YAML)
+  seed            oracle: noise seed
+  labels_topic    oracle: ground-truth label images (32SC1) to match by stamp
+  label_buffer    oracle: how many label images to keep
+  label_wait_s    oracle: how long a request waits for its label image to arrive
+  stats_period_s  period of the latency log (mean/max over the period)
+
+The oracle's label images come from `/ground_truth/panoptic_labels` (published by `rgbd_player`
+for generated bags); a request is matched to the label image whose stamp equals the color image's.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+import time
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from scene_recon_interfaces.msg import SegmentInfo
+from scene_recon_interfaces.srv import SegmentImage
+from sensor_msgs.msg import Image, RegionOfInterest
+
+from panoptic_mapping.dataio.frame import DatasetError
+from panoptic_mapping.segmentation import (
+    OracleSegmenter,
+    PanopticSegmentation,
+    SegmentationError,
+    load_segmentation_config,
+    make_segmenter,
+)
+from panoptic_mapping.segmentation.config import DEFAULT_SEGMENTATION_YAML
+from ros_nodes.conversions import image_to_depth, image_to_labels, image_to_rgb, labels_to_image, stamp_to_ns
+from ros_nodes.qos import SENSOR_RELIABLE
+from scene_recon.config import ConfigError
+from scene_recon.ros_env import ensure_ros_environment
+
+NODE_NAME = "segmentation_service"
+DEFAULT_LABELS_TOPIC = "/ground_truth/panoptic_labels"
+
+
+class LabelBuffer:
+    """The latest ground-truth label images by stamp; a request may wait briefly for its own.
+
+    The player publishes color and labels at the same instant, but they travel on different
+    topics: the request for a frame can arrive before that frame's label image.
+    """
+
+    def __init__(self, size: int) -> None:
+        self._size = max(int(size), 1)
+        self._images: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._cond = threading.Condition()
+
+    def put(self, stamp_ns: int, labels: np.ndarray) -> None:
+        with self._cond:
+            self._images[stamp_ns] = labels
+            self._images.move_to_end(stamp_ns)
+            while len(self._images) > self._size:
+                self._images.popitem(last=False)
+            self._cond.notify_all()
+
+    def wait_for(self, stamp_ns: int, timeout_s: float) -> np.ndarray | None:
+        with self._cond:
+            self._cond.wait_for(lambda: stamp_ns in self._images, timeout=max(timeout_s, 0.0))
+            return self._images.get(stamp_ns)
+
+    def describe(self) -> str:
+        with self._cond:
+            if not self._images:
+                return "no label image received yet"
+            stamps = sorted(self._images)
+            return f"{len(stamps)} buffered, stamps {_fmt_stamp(stamps[0])} .. {_fmt_stamp(stamps[-1])}"
+
+
+class LatencyStats:
+    """Backend and whole-request latencies since the last report."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._backend: list[float] = []
+        self._total: list[float] = []
+        self._failures = 0
+
+    def add(self, backend_ms: float | None, total_ms: float) -> None:
+        with self._lock:
+            self._total.append(total_ms)
+            if backend_ms is None:
+                self._failures += 1
+            else:
+                self._backend.append(backend_ms)
+
+    def report(self) -> str | None:
+        """One line (and reset), or None when there were no requests."""
+        with self._lock:
+            if not self._total:
+                return None
+            b = np.asarray(self._backend) if self._backend else np.zeros(1)
+            t = np.asarray(self._total)
+            line = (f"{len(t)} request(s), {self._failures} failed; backend latency mean {b.mean():.1f} ms, "
+                    f"max {b.max():.1f} ms; request mean {t.mean():.1f} ms, max {t.max():.1f} ms")
+            self._backend, self._total, self._failures = [], [], 0
+            return line
+
+
+class SegmentationService(Node):
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        p = self.declare_parameter
+        config_path = p("config", "").value or (DEFAULT_SEGMENTATION_YAML if DEFAULT_SEGMENTATION_YAML.is_file()
+                                                else None)
+        base = load_segmentation_config(config_path)
+        overrides: dict[str, Any] = {
+            "backend": p("backend", base.backend).value,
+            "onnx.model_config": p("model_config", base.onnx.model_config).value,
+            "oracle.ground_truth": p("ground_truth", base.oracle.ground_truth).value,
+            "oracle.level": p("noise_level", base.oracle.level).value,
+            "oracle.seed": int(p("seed", base.oracle.seed).value),
+        }
+        self.labels_topic = p("labels_topic", DEFAULT_LABELS_TOPIC).value
+        self.label_wait_s = float(p("label_wait_s", 0.5).value)
+        buffer_size = int(p("label_buffer", 30).value)
+        stats_period_s = float(p("stats_period_s", 10.0).value)
+
+        self.config = load_segmentation_config(config_path, overrides)
+        self.config.oracle.noise()  # unknown level: fail at start, naming the valid ones
+        self.segmenter = make_segmenter(self.config)
+        self.backend = self.config.backend
+        self.stats = LatencyStats()
+        self.labels = LabelBuffer(buffer_size)
+        self.create_service(SegmentImage, "segment_image", self.on_request,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+        if isinstance(self.segmenter, OracleSegmenter):
+            self.create_subscription(Image, self.labels_topic, self.on_labels, SENSOR_RELIABLE,
+                                     callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_timer(stats_period_s, self.log_stats, callback_group=MutuallyExclusiveCallbackGroup())
+        details = {
+            "onnx": f"model config {self.config.onnx.model_config}",
+            "oracle": f"ground truth {self.config.oracle.ground_truth}, level {self.config.oracle.level}, "
+                      f"seed {self.config.oracle.seed}, labels from {self.resolve_topic_name(self.labels_topic)}",
+            "none": "no segments (geometry only)",
+        }[self.backend]
+        self.get_logger().info(f"serving {self.resolve_service_name('segment_image')}: backend {self.backend} "
+                               f"({details})")
+
+    # ------------------------------------------------------------------ callbacks
+    def on_labels(self, msg: Image) -> None:
+        try:
+            self.labels.put(stamp_to_ns(msg.header.stamp), image_to_labels(msg))
+        except DatasetError as exc:
+            self.get_logger().warning(f"ignoring label image on {self.labels_topic}: {exc}")
+
+    def on_request(self, request: SegmentImage.Request, response: SegmentImage.Response) -> SegmentImage.Response:
+        t0 = time.perf_counter()
+        try:
+            result = self.segment(request)
+        except (DatasetError, SegmentationError, ValueError) as exc:
+            return self._fail(response, str(exc), t0)
+        except Exception as exc:  # a backend bug must not take the service down
+            self.get_logger().error(f"segmentation failed unexpectedly: {exc!r}")
+            return self._fail(response, f"internal error: {exc!r}", t0)
+        header = request.color.header
+        response.labels = labels_to_image(result.labels, stamp_to_ns(header.stamp), header.frame_id)
+        response.segments = [_segment_info(s) for s in result.segments]
+        response.latency_ms = float(result.latency_ms)
+        response.success = True
+        response.message = f"{self.backend}: {len(result.segments)} segment(s)"
+        self.stats.add(result.latency_ms, (time.perf_counter() - t0) * 1e3)
+        return response
+
+    def segment(self, request: SegmentImage.Request) -> PanopticSegmentation:
+        """Decode the request and run the backend; raises with a message for the caller."""
+        color_msg = request.color
+        if color_msg.height == 0 or color_msg.width == 0:
+            raise SegmentationError(f"empty color image ({color_msg.width}x{color_msg.height})")
+        color = image_to_rgb(color_msg)
+        depth = None
+        if request.has_depth:
+            depth, _ = image_to_depth(request.depth)
+            if depth.shape != color.shape[:2]:
+                raise SegmentationError(f"depth {depth.shape[1]}x{depth.shape[0]} and color "
+                                        f"{color.shape[1]}x{color.shape[0]} differ in size; depth must be registered")
+        if not isinstance(self.segmenter, OracleSegmenter):
+            return self.segmenter.segment(color, depth)
+        stamp = stamp_to_ns(color_msg.header.stamp)
+        labels = self.labels.wait_for(stamp, self.label_wait_s)
+        if labels is None:
+            raise SegmentationError(
+                f"oracle: no ground-truth label image with stamp {_fmt_stamp(stamp)} on "
+                f"{self.resolve_topic_name(self.labels_topic)} ({self.labels.describe()}); the color image "
+                "must carry the stamp of a published label image (rgbd_player publishes both for generated bags)"
+            )
+        if labels.shape != color.shape[:2]:
+            raise SegmentationError(f"label image {labels.shape[::-1]} and color {color.shape[1::-1]} differ in size")
+        return self.segmenter.segment_labels(labels, depth, key=stamp)
+
+    def log_stats(self) -> None:
+        line = self.stats.report()
+        if line:
+            self.get_logger().info(f"latency: {line}")
+
+    def _fail(self, response: SegmentImage.Response, message: str, t0: float) -> SegmentImage.Response:
+        self.get_logger().warning(f"request failed: {message}")
+        response.success = False
+        response.message = message
+        self.stats.add(None, (time.perf_counter() - t0) * 1e3)
+        return response
+
+
+def _segment_info(s: Any) -> SegmentInfo:
+    x, y, w, h = s.box
+    return SegmentInfo(id=int(s.id), class_id=int(s.class_id), class_name=s.class_name, is_thing=bool(s.is_thing),
+                       instance_id=int(s.instance_id), score=float(s.score),
+                       box=RegionOfInterest(x_offset=int(x), y_offset=int(y), width=int(w), height=int(h)))
+
+
+def _fmt_stamp(ns: int) -> str:
+    return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"
+
+
+def main(args: list[str] | None = None) -> int:
+    ensure_ros_environment()
+    rclpy.init(args=args)
+    try:
+        node = SegmentationService()
+    except (SegmentationError, ConfigError, DatasetError, KeyError, OSError) as exc:
+        rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
+        rclpy.try_shutdown()
+        return 1
+    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
+    executor = MultiThreadedExecutor(num_threads=2)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.log_stats()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
