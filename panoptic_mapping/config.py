@@ -41,6 +41,9 @@ class FusionConfig:
     split: bool = True
     split_mask_coverage: float = 0.9
     split_segment_share: float = 0.5
+    #: Our extension (full mode): a mask lying mostly on depth-edge pixels (small objects, which the
+    #: convexity segmentation shreds into edges) becomes a segment of its own.
+    rescue_edge_masks: bool = True
     #: A geometric segment takes the label of the mask covering most of it if that mask covers at
     #: least this share of it; otherwise it is background (REFERENCE.md: 0.2).
     min_label_share: float = 0.2

@@ -10,6 +10,8 @@ Full method (the paper's):
    cannot separate (a keyboard on a desk) survive;
 2. label assignment as in Voxblox++: each segment takes the mask covering most of it, if that
    mask covers at least `min_label_share` of it, else it is background;
+   (extension: a mask lying mostly on depth-edge pixels, typically a small object, gets its
+   valid-depth pixels as a segment of its own, `rescue_edge_masks`);
 3. Euclidean clustering: the segments of one thing instance are clustered by 3D distance; only
    the largest cluster keeps the instance, the rest become background (a chair mask bleeding onto
    the far floor).
@@ -77,6 +79,21 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
     n_m = len(masks.class_id)
     pan = masks.labels.astype(np.int64)
     num_split = 0
+    if full and cfg.rescue_edge_masks and n_m > 1:
+        # small objects are mostly edge pixels for the depth segmentation (a cup a few metres away):
+        # a mask lying mostly outside every segment gets its valid-depth pixels as a segment
+        valid = points[..., 2] > 0
+        in_seg = np.bincount(pan[geo > 0].ravel(), minlength=n_m)
+        on_edge = np.bincount(pan[(geo == 0) & valid].ravel(), minlength=n_m)
+        rescue = (on_edge > in_seg) & (on_edge >= min_points)
+        rescue[0] = False
+        ms = np.flatnonzero(rescue)
+        if ms.size:
+            lut = np.zeros(n_m, np.int64)
+            lut[ms] = n_g + np.arange(ms.size)
+            geo = np.where((geo == 0) & valid & (lut[pan] > 0), lut[pan], geo)
+            n_g += ms.size
+            num_split += int(ms.size)
     if full and cfg.split and n_m > 1 and n_g > 1:
         ov = _overlap(geo, pan, n_g, n_m)
         size_m = np.maximum(ov.sum(axis=0), 1)
@@ -90,7 +107,7 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
             lut[gs, ms] = n_g + np.arange(gs.size)
             geo = np.where(geo > 0, lut[geo, pan], 0)
             n_g += gs.size
-            num_split = int(gs.size)
+            num_split += int(gs.size)
     # label assignment (Voxblox++): majority mask if it covers enough of the segment
     ov = _overlap(geo, pan, n_g, n_m)
     size_g = ov.sum(axis=1)

@@ -530,11 +530,11 @@ def evaluate_point_labels(gt_labels: np.ndarray, pred_labels: np.ndarray, gt_seg
 # ---------------------------------------------------------------------------------------------- meshes
 
 
-def _included(names: Sequence[str], classes: Iterable[str] | None) -> np.ndarray:
-    if classes is None:
-        return np.ones(len(names), bool)
-    wanted = set(classes)
-    return np.array([n in wanted for n in names], bool)
+def _included(class_ids: Sequence[int], names: Sequence[str], classes: Iterable[str] | None) -> np.ndarray:
+    """Entities taking part: a known class (id >= 0; -1 is "unknown") that is among `classes`."""
+    wanted = None if classes is None else set(classes)
+    return np.array([cid >= 0 and (wanted is None or n in wanted) for cid, n in zip(class_ids, names, strict=True)],
+                    bool).reshape(-1)
 
 
 def evaluate_panoptic_map(predictions: Sequence[MappedEntity], ground_truth: Iterable[GroundTruthEntityLike],
@@ -544,8 +544,9 @@ def evaluate_panoptic_map(predictions: Sequence[MappedEntity], ground_truth: Ite
 
     `ground_truth` is a sequence of entities with id, class_id, class_name, is_thing and a map-frame
     mesh (e.g. ``GroundTruthScene.entities``; a ``GroundTruthScene`` itself works too). `classes`
-    restricts the evaluation to these class names (e.g. ``PAPER_CLASSES``); entities of other classes
-    still count as reconstructed geometry, and their ground-truth points are void.
+    restricts the evaluation to these class names (e.g. ``PAPER_CLASSES``). Entities of other classes,
+    and predictions of the "unknown" class (id -1), still count as reconstructed geometry: ground-truth
+    points of left-out classes are void, points transferred from left-out predictions are unlabelled.
     """
     t0 = time.perf_counter()
     cfg = config or MetricsConfig()
@@ -567,16 +568,14 @@ def evaluate_panoptic_map(predictions: Sequence[MappedEntity], ground_truth: Ite
 
     gt_point_count = np.bincount(owner, minlength=len(gt))
     seen = gt_point_count >= cfg.min_gt_points
-    gt_names = [e.class_name for e in gt]
+    gt_ids, gt_names = [int(e.class_id) for e in gt], [e.class_name for e in gt]
     gt_seg_of, gt_segments = build_segments(
-        [e.class_id for e in gt], gt_names, [e.is_thing for e in gt], seen & _included(gt_names, classes),
-        [e.id for e in gt])
-    pred_names = [e.class_name for e in predictions]
+        gt_ids, gt_names, [e.is_thing for e in gt], seen & _included(gt_ids, gt_names, classes), [e.id for e in gt])
+    pred_ids, pred_names = [int(e.class_id) for e in predictions], [e.class_name for e in predictions]
     pred_areas = [float(_triangle_areas(*m).sum()) if len(m[1]) else 0.0 for m in pred_meshes]
     pred_seg_of, pred_segments = build_segments(
-        [e.class_id for e in predictions], pred_names, [e.is_thing for e in predictions],
-        _included(pred_names, classes), [e.id for e in predictions], [e.confidence for e in predictions],
-        pred_areas)
+        pred_ids, pred_names, [e.is_thing for e in predictions], _included(pred_ids, pred_names, classes),
+        [e.id for e in predictions], [e.confidence for e in predictions], pred_areas)
 
     gt_labels = gt_seg_of[owner]
     pred_labels = np.append(pred_seg_of, VOID)[nearest]  # nearest == VOID picks the appended VOID
