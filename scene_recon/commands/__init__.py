@@ -3,3 +3,6 @@
 from . import demo_cmd, generate_cmd, inspect_cmd, map_cmd, suite_cmd
 
 COMMANDS = [demo_cmd, generate_cmd, suite_cmd, inspect_cmd, map_cmd]
+from . import eval_map_cmd  # noqa: E402
+
+COMMANDS.append(eval_map_cmd)
