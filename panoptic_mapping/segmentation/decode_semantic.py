@@ -1,15 +1,18 @@
 """Decode per-pixel semantic logits (1, C, h, w) into panoptic candidates.
 
-argmax per pixel (on the logit grid, cropped to the letterbox content, then resized to the image
-with nearest neighbour: cheaper than resizing C channels and exact when the grid matches the
-image), model classes -> project classes, then stuff = one segment per class and things = one
-instance per connected component. A segment's score is its mean top-class probability.
+Everything up to the segment map happens on the logit grid (cropped to the letterbox content),
+which is typically 1/4 of the input: argmax, top-class probability, model -> project classes, and
+the segments themselves (stuff: one per class; things: one instance per 8-connected component).
+Only the finished segment map is resized to the image, with nearest neighbour: cheaper than
+resizing C channels or labelling components at full resolution, and exact when the grid matches
+the image. A segment's score is its mean top-class probability.
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from .decode_common import DecodeContext, squeeze_batch
 from .types import MaskCrop, SegmentationError, SegmentCandidate
@@ -29,29 +32,41 @@ def decode_semantic(logits: np.ndarray, ctx: DecodeContext) -> list[SegmentCandi
     top = np.take_along_axis(x, cls[None], axis=0)[0]
     # softmax probability of the top class: 1 / sum(exp(l - l_max)), unless the model outputs probabilities
     prob = top if cfg.semantic.probabilities else 1.0 / np.exp(x - top[None]).sum(axis=0)
-    w, h = ctx.image_size
-    if cls.shape != (h, w):
-        cls = cv2.resize(cls.astype(np.uint16), (w, h), interpolation=cv2.INTER_NEAREST).astype(np.int64)
-        prob = cv2.resize(prob.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST)
     # Several model classes may map to one project class (wall-brick, wall-tile -> wall): work on project ids.
     project = ctx.class_map.project_ids[cls]
-    present = np.flatnonzero(np.bincount(project.ravel() + 1)[1:])  # counts[1 + id] -> project ids present
+    segments, infos = _segment_map(project, ctx)
+    w, h = ctx.image_size
+    if segments.shape != (h, w):
+        segments = cv2.resize(segments, (w, h), interpolation=cv2.INTER_NEAREST)
+        prob = cv2.resize(prob.astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST)
+    n = len(infos)
+    flat = segments.ravel()
+    areas = np.bincount(flat, minlength=n + 1)
+    sums = np.bincount(flat, weights=prob.ravel(), minlength=n + 1)
     out: list[SegmentCandidate] = []
+    for k, sl in enumerate(ndimage.find_objects(segments, max_label=n), start=1):
+        info = infos[k - 1]
+        if sl is None or (info.is_thing and areas[k] < cfg.semantic.min_instance_area_px):
+            continue
+        score = float(sums[k] / areas[k])
+        if score >= cfg.score_threshold:
+            out.append(SegmentCandidate(MaskCrop(sl[1].start, sl[0].start, segments[sl] == k), info, score))
+    return out
+
+
+def _segment_map(project: np.ndarray, ctx: DecodeContext) -> tuple[np.ndarray, list]:
+    """int32 map of segment numbers (0 = dropped class) on the grid, and each segment's class."""
+    segments = np.zeros(project.shape, np.int32)
+    infos = []
+    present = np.flatnonzero(np.bincount(project.ravel() + 1)[1:])  # counts[1 + id] -> project ids present
     for pid in present:
         info = ctx.class_map.project_class(int(pid))
         mask = project == pid
         if not info.is_thing:
-            crop = MaskCrop.from_full(mask)
-            score = float(prob[mask].mean())
-            if crop is not None and score >= cfg.score_threshold:
-                out.append(SegmentCandidate(crop, info, score))
+            infos.append(info)
+            segments[mask] = len(infos)
             continue
-        n, comp, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=_CONNECTIVITY)
-        sums = np.bincount(comp.ravel(), weights=prob.ravel(), minlength=n)
-        for k in range(1, n):
-            cx, cy, cw, ch, area = (int(v) for v in stats[k])
-            score = float(sums[k] / area)
-            if area < cfg.semantic.min_instance_area_px or score < cfg.score_threshold:
-                continue
-            out.append(SegmentCandidate(MaskCrop(cx, cy, comp[cy : cy + ch, cx : cx + cw] == k), info, score))
-    return out
+        n, comp = cv2.connectedComponents(mask.astype(np.uint8), connectivity=_CONNECTIVITY)
+        segments[mask] = comp[mask] + len(infos)
+        infos.extend([info] * (n - 1))
+    return segments, infos

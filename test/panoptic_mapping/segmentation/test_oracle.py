@@ -273,3 +273,15 @@ def test_clear_errors():
         OracleConfig(level="extreme").noise()
     with pytest.raises(ConfigError, match="miss_prob"):
         OracleNoiseConfig(miss_prob=1.5)
+
+
+def test_flicker_varies_the_error_rate_between_frames():
+    labels, depth = _scene()
+
+    def missed_per_frame(flicker: float) -> np.ndarray:
+        seg = _oracle(miss_prob=0.5, flicker=flicker)
+        return np.array([len(THINGS) - len(seg.segment_labels(labels, depth, key=k).things) for k in range(80)])
+
+    steady, flickering = missed_per_frame(0.0), missed_per_frame(1.0)
+    assert abs(steady.mean() - flickering.mean()) < 1.0  # same average rate ...
+    assert flickering.var() > 1.5 * steady.var()  # ... but some frames are much worse than others
