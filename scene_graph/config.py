@@ -76,10 +76,14 @@ class SupportConfig:
     #: Footprint grid for Eq. (2): cells per side (bounded) and the target cell size (m).
     grid_max_cells: int = 16
     grid_cell_size: float = 0.01
-    #: Invisible supporting plane: candidate box top within this distance (m) of the child's
-    #: bottom, and footprint overlap / child footprint >= b_th.
-    invisible_max_gap: float = 0.08
+    #: A plane within this distance (m) of the child's bottom is in contact with it (Eq. (1) up to
+    #: mesh noise); without one, invisible supporting planes are considered.
+    contact_tolerance: float = 0.05
+    #: Invisible supporting plane: the child's bottom lies between the candidate's box bottom +
+    #: inferred_min_height and its top + invisible_max_gap (m), over >= b_th of its footprint.
     invisible_planes: bool = True
+    invisible_max_gap: float = 0.08
+    inferred_min_height: float = 0.05
     #: Fallback: a child whose bottom is within this height (m) of the floor goes to the floor;
     #: otherwise the nearest wall within wall_distance (m) (an object hung on or leaning against
     #: a wall, Sec. 6.5), otherwise the floor (the root when there is no floor).
@@ -119,12 +123,16 @@ class ProximalConfig:
 class MatchConfig:
     """Matching predicted to ground-truth nodes for the metrics (Sec. 5.3)."""
 
-    #: Minimum 3D box IoU for a predicted node to correspond to a ground-truth node.
+    #: Minimum 3D box IoU for a predicted node to correspond to a ground-truth node ...
     min_iou: float = 0.1
+    #: ... or minimum share of the smaller box inside the other (a partially seen wall).
+    min_containment: float = 0.25
     #: Added to the (1 - IoU) cost of a cross-class pair (allowed, counted as a substitution).
     class_mismatch_cost: float = 1.0
     #: Allow matches across classes at all (a mislabelled entity is a substitution).
     allow_class_mismatch: bool = True
+    #: Boxes are padded to this size per axis (m) for matching: an observed wall is a flat face.
+    min_extent: float = 0.05
     #: IoU threshold of the box mAP (Table 4).
     map_iou: float = 0.5
 

@@ -157,24 +157,32 @@ class SupportInference:
 
     def _inferred(self, child: NodeFeatures, candidates: list[int],
                   scored: list[SupportDecision]) -> list[SupportDecision]:
-        """Invisible supporting planes: a well-overlapped candidate with no valid plane (Sec. 2.2)."""
+        """Invisible supporting planes (Sec. 2.2): a candidate that the child is well overlapped with
+        but that has no valid plane in contact with the child's bottom.
+
+        "Well overlapped": the child's footprint lies at least b_th over the candidate's and its
+        bottom is within the candidate's height range (above the candidate's bottom by at least
+        ``inferred_min_height``, below its top plus ``invisible_max_gap``): an occluded table top,
+        an unseen shelf level. The child's bottom becomes the candidate's new plane (D = 0).
+        """
         cfg = self.cfg
-        valid = {d.parent_id for d in scored if d.score > cfg.accept_score}
+        bottom = child.box.z_min
+        in_contact = {d.parent_id for d in scored
+                      if d.score > cfg.accept_score and abs(d.distance) <= cfg.contact_tolerance}
         out = []
         for pid in candidates:
             parent = self.nodes[pid]
-            if pid in valid or parent.category == LAYOUT:
+            if pid in in_contact or parent.category == LAYOUT:
                 continue
-            gap = child.box.z_min - parent.box.z_max
-            if abs(gap) > cfg.invisible_max_gap:
+            if not parent.box.z_min + cfg.inferred_min_height <= bottom <= parent.box.z_max + cfg.invisible_max_gap:
                 continue
             ratio = _overlap_ratio(child.box, parent.box)
             if ratio < cfg.b_th:
                 continue
-            score = (1.0 - min(1.0, abs(gap) / cfg.distance_scale)) * ratio  # Eq. (3) with the new plane
-            plane = SurfacePlane(Plane(normal=[0.0, 0.0, 1.0], d=-child.box.z_min, area=child.box.footprint_area),
+            score = ratio  # Eq. (3) with D = 0: the plane is registered at the child's bottom
+            plane = SurfacePlane(Plane(normal=[0.0, 0.0, 1.0], d=-bottom, area=child.box.footprint_area),
                                  "inferred", footprint_triangles(parent.box))
-            out.append(SupportDecision(child.id, pid, "inferred_plane", score, ratio, gap, plane))
+            out.append(SupportDecision(child.id, pid, "inferred_plane", score, ratio, 0.0, plane))
         return out
 
     # ------------------------------------------------------------------ fallbacks (Sec. 6.5)
@@ -215,9 +223,10 @@ class SupportInference:
             return SupportDecision(child.id, ROOT_ID, "root", 1.0, 1.0, 0.0, None)
         candidates = self._candidates(child)
         scored = self._score_planes(child, candidates)
-        if cfg.invisible_planes:
-            scored += self._inferred(child, candidates, scored)
         accepted = [d for d in scored if d.score > cfg.accept_score]
+        touching = [d for d in accepted if abs(d.distance) <= cfg.contact_tolerance]
+        if cfg.invisible_planes and not touching:  # nothing visible under the child's bottom
+            accepted += [d for d in self._inferred(child, candidates, scored) if d.score > cfg.accept_score]
         if accepted:
             # Prefer planes that also meet Eq. (2) (A >= b_th), then the best Eq. (3) score.
             best = max(accepted, key=lambda d: (d.contact_ratio >= cfg.b_th, d.score, -abs(d.distance)))

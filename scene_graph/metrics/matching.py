@@ -2,10 +2,11 @@
 
 Predicted and annotated graphs share no ids (a mapper numbers its entities as it likes), so the
 metrics first pair nodes by geometry. The similarity is the exact box IoU; a pair qualifies when
-IoU >= ``min_iou`` or when one box lies mostly inside the other (containment >= 0.5: a partially
-observed wall or cabinet has a small box inside the true one). Cross-class pairs may match at an
-extra cost and count as label substitutions (a wrong detection, Sec. 5.3). The roots always match.
-"""
+IoU >= ``min_iou`` or when one box lies largely inside the other (share of the smaller box >=
+``min_containment``: a partially observed wall or cabinet has a small box inside the true one).
+Cross-class pairs may match at an extra cost and count as label substitutions (a wrong
+detection, Sec. 5.3). The roots always match. Boxes are padded to ``min_extent`` per axis for
+matching only: an observed wall or floor is one face, a box without volume."""
 
 from __future__ import annotations
 
@@ -18,8 +19,6 @@ from ..box import GravityBox, iou_matrix
 from ..config import MatchConfig
 from ..graph import ContactGraph
 
-#: A pair also qualifies when its intersection covers this share of the smaller box.
-MIN_CONTAINMENT = 0.5
 #: Cost of a forbidden pair in the assignment (larger than any allowed cost).
 FORBIDDEN = 1e6
 
@@ -55,7 +54,8 @@ def match_nodes(pred: ContactGraph, gt: ContactGraph, cfg: MatchConfig | None = 
 
     def box_of(graph: ContactGraph, i: int) -> GravityBox:
         n = graph.nodes[i]
-        return (n.box_unrefined or n.box) if unrefined else n.box  # type: ignore[return-value]
+        b: GravityBox = (n.box_unrefined or n.box) if unrefined else n.box  # type: ignore[assignment]
+        return GravityBox(b.center, np.maximum(b.size, cfg.min_extent), b.yaw)
 
     pb = [box_of(pred, i) for i in p_ids]
     gb = [box_of(gt, i) for i in g_ids]
@@ -65,7 +65,7 @@ def match_nodes(pred: ContactGraph, gt: ContactGraph, cfg: MatchConfig | None = 
     for i, j in np.argwhere(iou > 0.0):
         contain[i, j] = _containment(pb[i], gb[j])
     same = np.array([[pred.nodes[p].class_name == gt.nodes[g].class_name for g in g_ids] for p in p_ids])
-    ok = (iou >= cfg.min_iou) | (contain >= MIN_CONTAINMENT)
+    ok = (iou >= cfg.min_iou) | (contain >= cfg.min_containment)
     if not cfg.allow_class_mismatch:
         ok &= same
     cost = np.where(ok, 1.0 - iou + np.where(same, 0.0, cfg.class_mismatch_cost), FORBIDDEN)
