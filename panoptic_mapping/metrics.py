@@ -1,8 +1,8 @@
 """3D panoptic quality (PQ/SQ/RQ, paper Eq. 15) and instance mAP@0.5 of a mapped scene (paper Sec. 5.2).
 
 The map and the ground truth are both sets of triangle meshes, so the comparison needs a common
-support on which "masks" can be intersected. Following the point-transfer protocol of 3D panoptic
-mapping evaluations, that support is the *observed* ground-truth surface:
+support on which "masks" can be intersected: predicted labels are transferred onto points of the
+*observed* ground-truth surface:
 
 1. Every ground-truth mesh is sampled uniformly (``MetricsConfig.sample_spacing``: one point per
    ``spacing**2`` of area, deterministic seed).
@@ -33,6 +33,11 @@ integrates the monotone precision envelope over all recall points (VOC 2010+ / C
 mean over thing classes present in the evaluated ground truth.
 
 All reported qualities (PQ, SQ, RQ, AP, mAP) are percentages in [0, 100], like the paper's tables.
+
+Consequences worth knowing: completeness is not scored (what the map never reconstructed is not a
+miss), and the map should export *all* its geometry, unknown-class entities included -- ground-truth
+surface left without its own reconstruction but within ``observed_distance`` of a neighbour's mesh is
+transferred to that neighbour and lowers its IoU.
 """
 
 from __future__ import annotations
