@@ -21,6 +21,7 @@ from .config import (
 from .factory import make_segmenter
 from .model_config import OnnxModelConfig, load_model_config
 from .none_backend import NoneSegmenter
+from .onnx_backend import OnnxSegmenter, OnnxTiming
 from .oracle import EntityClass, OracleSegmenter
 from .panoptic import assemble
 from .types import MaskCrop, PanopticSegmentation, Segment, SegmentationError, SegmentCandidate
@@ -32,6 +33,8 @@ __all__ = [
     "NoneSegmenter",
     "OnnxConfig",
     "OnnxModelConfig",
+    "OnnxSegmenter",
+    "OnnxTiming",
     "OracleConfig",
     "OracleNoiseConfig",
     "OracleSegmenter",
