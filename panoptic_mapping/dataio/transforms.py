@@ -115,13 +115,21 @@ class _DynamicEdge:
     _sorted: bool = True
     _arrays: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
-    def add(self, stamp_ns: int, translation: np.ndarray, quat: np.ndarray) -> None:
+    def add(self, stamp_ns: int, translation: np.ndarray, quat: np.ndarray, max_samples: int = 0) -> None:
         if self.stamps and stamp_ns < self.stamps[-1]:
             self._sorted = False
         self.stamps.append(stamp_ns)
         self.translations.append(translation)
         self.quats.append(quat)
         self._arrays = None
+        if max_samples and len(self.stamps) > max_samples:  # a live stream keeps the recent history only
+            keep = max_samples // 2
+            if not self._sorted:
+                stamps, trans, quats = self.arrays()
+                self.stamps, self.translations, self.quats = list(stamps), list(trans), list(quats)
+                self._sorted = True
+            del self.stamps[:-keep], self.translations[:-keep], self.quats[:-keep]
+            self._arrays = None
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if self._arrays is None:
@@ -143,9 +151,12 @@ class TransformBuffer:
     `source` coordinates to `target` coordinates) at time t.
     """
 
-    def __init__(self, max_extrapolation_ns: int = 50_000_000, max_gap_ns: int = 1_000_000_000):
+    def __init__(self, max_extrapolation_ns: int = 50_000_000, max_gap_ns: int = 1_000_000_000,
+                 max_samples_per_edge: int = 0):
         self.max_extrapolation_ns = max_extrapolation_ns
         self.max_gap_ns = max_gap_ns
+        #: 0 = keep everything (recordings); live nodes bound the history per dynamic edge.
+        self.max_samples_per_edge = max_samples_per_edge
         self._parent: dict[str, str] = {}
         self._static: dict[str, np.ndarray] = {}
         self._dynamic: dict[str, _DynamicEdge] = defaultdict(_DynamicEdge)
@@ -177,7 +188,8 @@ class TransformBuffer:
         if static:
             self._static[child] = make_transform(translation, quat)
         else:
-            self._dynamic[child].add(int(stamp_ns), translation, quat / np.linalg.norm(quat))
+            self._dynamic[child].add(int(stamp_ns), translation, quat / np.linalg.norm(quat),
+                                     self.max_samples_per_edge)
         return True
 
     def _edge(self, child: str, stamp_ns: int) -> np.ndarray:

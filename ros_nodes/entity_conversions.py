@@ -1,0 +1,93 @@
+"""PanopticEntity messages <-> the core's MappedEntity, plus RViz markers of the panoptic map."""
+
+from __future__ import annotations
+
+import colorsys
+
+import numpy as np
+from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
+from shape_msgs.msg import Mesh, MeshTriangle
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from cad_replacement.cad.features import gravity_aligned_box
+from panoptic_mapping.entities import MappedEntity
+from scene_recon_interfaces.msg import OrientedBox, PanopticEntity
+
+CATEGORY = {"layout": PanopticEntity.CATEGORY_LAYOUT, "rigid": PanopticEntity.CATEGORY_RIGID,
+            "articulated": PanopticEntity.CATEGORY_ARTICULATED}
+CATEGORY_NAME = {v: k for k, v in CATEGORY.items()}
+
+
+def box_msg(vertices: np.ndarray) -> OrientedBox:
+    """Gravity-aligned box of a vertex set (empty -> zero box at the origin)."""
+    msg = OrientedBox()
+    if len(vertices) == 0:
+        msg.center.orientation.w = 1.0
+        return msg
+    box = gravity_aligned_box(vertices)
+    msg.center = Pose()
+    msg.center.position = Point(x=float(box.center[0]), y=float(box.center[1]), z=float(box.center[2]))
+    msg.center.orientation = Quaternion(z=float(np.sin(box.yaw / 2)), w=float(np.cos(box.yaw / 2)))
+    msg.size = Vector3(x=float(box.size[0]), y=float(box.size[1]), z=float(box.size[2]))
+    return msg
+
+
+def mesh_msg(vertices: np.ndarray, faces: np.ndarray) -> Mesh:
+    v = np.asarray(vertices, np.float64)
+    if not np.all(np.isfinite(v)):
+        raise ValueError("mesh vertices must be finite")
+    return Mesh(triangles=[MeshTriangle(vertex_indices=[int(a), int(b), int(c)]) for a, b, c in faces],
+                vertices=[Point(x=float(x), y=float(y), z=float(z)) for x, y, z in v])
+
+
+def entity_to_msg(e: MappedEntity, include_mesh: bool = True, mesh_uri: str = "") -> PanopticEntity:
+    msg = PanopticEntity(id=int(e.id), class_id=int(e.class_id), class_name=e.class_name,
+                         instance_id=int(e.instance_id), is_thing=bool(e.is_thing),
+                         category=CATEGORY.get(e.category, PanopticEntity.CATEGORY_UNKNOWN),
+                         confidence=float(e.confidence), revision=int(e.revision), mesh_uri=mesh_uri)
+    msg.box = box_msg(e.vertices)
+    if include_mesh and len(e.faces):
+        msg.mesh = mesh_msg(e.vertices, e.faces)
+    return msg
+
+
+def msg_to_entity(msg: PanopticEntity) -> MappedEntity:
+    v = np.array([[p.x, p.y, p.z] for p in msg.mesh.vertices], np.float64).reshape(-1, 3)
+    f = np.array([t.vertex_indices for t in msg.mesh.triangles], np.int64).reshape(-1, 3)
+    return MappedEntity(msg.id, msg.class_id, msg.class_name, msg.instance_id, msg.is_thing,
+                        CATEGORY_NAME.get(msg.category, "rigid"), msg.confidence, len(v), msg.revision, v, f)
+
+
+def entity_color(entity_id: int) -> ColorRGBA:
+    h = (entity_id * 0.61803398875) % 1.0
+    r, g, b = colorsys.hsv_to_rgb(h, 0.65, 0.9)
+    return ColorRGBA(r=r, g=g, b=b, a=1.0)
+
+
+def map_markers(entities: list[MappedEntity], frame_id: str, stamp) -> MarkerArray:
+    """One TRIANGLE_LIST per entity (coloured by entity) and a text label above it."""
+    out = MarkerArray()
+    out.markers.append(Marker(action=Marker.DELETEALL))
+    for e in entities:
+        if not len(e.faces):
+            continue
+        tri = np.asarray(e.vertices)[np.asarray(e.faces).reshape(-1)]
+        m = Marker(type=Marker.TRIANGLE_LIST, action=Marker.ADD, ns="panoptic_map", id=int(e.id))
+        m.header.frame_id, m.header.stamp = frame_id, stamp
+        m.pose.orientation.w = 1.0
+        m.scale = Vector3(x=1.0, y=1.0, z=1.0)
+        m.color = entity_color(int(e.id))
+        m.points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in tri]
+        out.markers.append(m)
+        t = Marker(type=Marker.TEXT_VIEW_FACING, action=Marker.ADD, ns="panoptic_labels", id=int(e.id))
+        t.header.frame_id, t.header.stamp = frame_id, stamp
+        top = np.asarray(e.vertices).max(axis=0)
+        mid = np.asarray(e.vertices).mean(axis=0)
+        t.pose.position = Point(x=float(mid[0]), y=float(mid[1]), z=float(top[2] + 0.1))
+        t.pose.orientation.w = 1.0
+        t.scale.z = 0.12
+        t.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
+        t.text = f"{e.class_name} {e.id}"
+        out.markers.append(t)
+    return out

@@ -1,0 +1,285 @@
+"""`panoptic_mapper`: the volumetric panoptic mapper as a ROS 2 node (thin adapter over PanopticMapper).
+
+Inputs: color + depth images and camera info (approximately synchronised here), camera pose from
+TF (`map_frame` <- image frame). Keyframes are sent to the segmentation service asynchronously:
+a slow or dead service never blocks integration — other frames keep integrating geometry, and a
+keyframe whose answer does not come within `segmentation_timeout_s` integrates without labels.
+Outputs: `panoptic_entities` (PanopticEntityArray) and `panoptic_map_markers` (MarkerArray) at
+`publish_period_s` when the map changed; services save_map / load_map / reset_map / extract_entities.
+"""
+
+from __future__ import annotations
+
+import collections
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+from visualization_msgs.msg import MarkerArray
+
+from panoptic_mapping.config import MapperConfig
+from panoptic_mapping.dataio.frame import DatasetError, RGBDFrame
+from panoptic_mapping.dataio.transforms import TransformLookupError
+from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
+from panoptic_mapping.mapper import PanopticMapper
+from panoptic_mapping.pipeline import class_metas
+from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
+from ros_nodes.entity_conversions import entity_to_msg, map_markers
+from ros_nodes.qos import SENSOR_RELIABLE
+from ros_nodes.tf_listener import TFListener
+from scene_recon.config import CONFIG_DIR, ConfigError, load_config
+from scene_recon.ros_env import ensure_ros_environment
+from scene_recon_interfaces.msg import PanopticEntityArray
+from scene_recon_interfaces.srv import ExtractEntities, LoadMap, ResetMap, SaveMap, SegmentImage
+
+
+@dataclass
+class _Pending:
+    frame: RGBDFrame
+    color_msg: Image
+    depth_msg: Image
+    future: object
+    sent: float
+
+
+class MapperNode(Node):
+    def __init__(self) -> None:
+        super().__init__("panoptic_mapper")
+        p = self.declare_parameter
+        self.map_frame = p("map_frame", "map").value
+        config_file = p("config_file", "").value
+        mode = p("mode", "").value
+        self.sync_slop_ns = int(float(p("sync_slop_s", 0.02).value) * 1e9)
+        self.use_segmentation = bool(p("use_segmentation", True).value)
+        self.seg_timeout_s = float(p("segmentation_timeout_s", 3.0).value)
+        self.tf_wait_s = float(p("tf_wait_s", 0.5).value)
+        self.publish_period_s = float(p("publish_period_s", 2.0).value)
+        self.include_meshes = bool(p("publish_meshes", True).value)
+        self.max_queue = int(p("max_queue", 30).value)
+        path = config_file or (CONFIG_DIR / "mapper.yaml" if (CONFIG_DIR / "mapper.yaml").is_file() else None)
+        overrides = {"mode": mode} if mode else {}
+        try:
+            self.config = load_config(MapperConfig, path, overrides)
+        except ConfigError as exc:
+            self.get_logger().error(f"{exc}; using the default mapper configuration")
+            self.config = MapperConfig()
+        self.mapper = PanopticMapper(self.config, class_metas())
+        self.tf = TFListener(self)
+        self.create_subscription(Image, p("color_topic", "/camera/color/image_raw").value, self._on_color,
+                                 SENSOR_RELIABLE)
+        self.create_subscription(Image, p("depth_topic", "/camera/depth/image_rect_raw").value, self._on_depth,
+                                 SENSOR_RELIABLE)
+        self.create_subscription(CameraInfo, p("camera_info_topic", "/camera/color/camera_info").value,
+                                 self._on_info, SENSOR_RELIABLE)
+        self.seg_client = self.create_client(SegmentImage, p("segmentation_service", "segment_image").value)
+        self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", 1)
+        self.pub_markers = self.create_publisher(MarkerArray, "panoptic_map_markers", 1)
+        self.create_service(SaveMap, "save_map", self._srv_save)
+        self.create_service(LoadMap, "load_map", self._srv_load)
+        self.create_service(ResetMap, "reset_map", self._srv_reset)
+        self.create_service(ExtractEntities, "extract_entities", self._srv_extract)
+        self.colors: collections.deque[Image] = collections.deque(maxlen=30)
+        self.info: CameraInfo | None = None
+        self.queue: collections.deque[tuple[Image, Image]] = collections.deque()
+        self.pending: list[_Pending] = []
+        self.counters = collections.Counter()
+        self._changed = False
+        self._published_revision: dict[int, int] = {}
+        self.create_timer(0.01, self._process)
+        self.create_timer(self.publish_period_s, self._publish)
+        self.create_timer(10.0, self._report)
+
+    # ------------------------------------------------------------------ inputs
+    def _on_info(self, msg: CameraInfo) -> None:
+        self.info = msg
+
+    def _on_color(self, msg: Image) -> None:
+        self.colors.append(msg)
+
+    def _on_depth(self, msg: Image) -> None:
+        t = stamp_to_ns(msg.header.stamp)
+        best = min(self.colors, key=lambda c: abs(stamp_to_ns(c.header.stamp) - t), default=None)
+        if best is None or abs(stamp_to_ns(best.header.stamp) - t) > self.sync_slop_ns:
+            self.counters["unpaired_depth"] += 1
+            return
+        self.queue.append((best, msg))
+        while len(self.queue) > self.max_queue:  # cannot keep up: drop the oldest, keep the newest
+            self.queue.popleft()
+            self.counters["dropped_backlog"] += 1
+
+    def _make_frame(self, color_msg: Image, depth_msg: Image) -> RGBDFrame | None:
+        if self.info is None:
+            self.counters["no_camera_info"] += 1
+            if self.counters["no_camera_info"] == 1:
+                self.get_logger().warning("no camera info received yet; frames wait for it")
+            return None
+        stamp = stamp_to_ns(depth_msg.header.stamp)
+        try:
+            color = image_to_rgb(color_msg)
+            depth, n_bad = image_to_depth(depth_msg)
+            intr = camera_info_to_intrinsics(self.info)
+            pose = self.tf.buffer.lookup(self.map_frame, color_msg.header.frame_id, stamp)
+            return RGBDFrame(color, depth, intr, pose, stamp, self.mapper.frames_integrated,
+                             color_msg.header.frame_id, n_bad)
+        except DatasetError as exc:
+            self.counters["bad_image"] += 1
+            self.get_logger().error(f"frame at {stamp * 1e-9:.3f} s skipped: {exc}", throttle_duration_sec=5.0)
+            return None
+
+    # ------------------------------------------------------------------ processing
+    def _process(self) -> None:
+        self._collect_segmentations()
+        if not self.queue:
+            return
+        color_msg, depth_msg = self.queue[0]
+        try:
+            frame = self._make_frame(color_msg, depth_msg)
+        except TransformLookupError as exc:
+            age = self.get_clock().now().nanoseconds - stamp_to_ns(depth_msg.header.stamp)
+            if age < self.tf_wait_s * 1e9 and abs(age) < 3600e9:
+                return  # TF may still arrive: keep the frame at the head of the queue
+            self.queue.popleft()
+            self.counters["no_tf"] += 1
+            self.get_logger().warning(f"frame skipped, no pose: {exc}", throttle_duration_sec=5.0)
+            return
+        self.queue.popleft()
+        if frame is None:
+            return
+        if self.mapper.is_keyframe(frame):
+            self.mapper.mark_keyframe(frame)
+            if self.use_segmentation and self.seg_client.service_is_ready():
+                req = SegmentImage.Request(color=color_msg, has_depth=True, depth=depth_msg)
+                self.pending.append(_Pending(frame, color_msg, depth_msg, self.seg_client.call_async(req),
+                                             time.monotonic()))
+                self.counters["segmentation_calls"] += 1
+                return
+            self.counters["keyframes_unsegmented"] += 1
+        self._integrate(frame, None)
+
+    def _collect_segmentations(self) -> None:
+        still = []
+        for item in self.pending:
+            if item.future.done():
+                masks = None
+                try:
+                    res = item.future.result()
+                    if res is not None and res.success:
+                        masks = self._masks(res)
+                    else:
+                        self.counters["segmentation_failed"] += 1
+                        self.get_logger().warning(f"segmentation failed: {getattr(res, 'message', '')}",
+                                                  throttle_duration_sec=5.0)
+                except Exception as exc:  # the service died mid-call: map geometry anyway
+                    self.counters["segmentation_failed"] += 1
+                    self.get_logger().warning(f"segmentation call failed: {exc}", throttle_duration_sec=5.0)
+                self._integrate(item.frame, masks)
+            elif time.monotonic() - item.sent > self.seg_timeout_s:
+                self.counters["segmentation_timeout"] += 1
+                self.get_logger().warning("segmentation service too slow: keyframe integrated without labels",
+                                          throttle_duration_sec=5.0)
+                self._integrate(item.frame, None)
+            else:
+                still.append(item)
+        self.pending = still
+
+    def _masks(self, res: SegmentImage.Response) -> PanopticMasks:
+        labels = image_to_labels(res.labels)
+        n = max([s.id for s in res.segments], default=0) + 1
+        cls = np.full(n, BACKGROUND, np.int32)
+        thing = np.zeros(n, bool)
+        score = np.zeros(n)
+        for s in res.segments:
+            cls[s.id], thing[s.id], score[s.id] = s.class_id, s.is_thing, s.score
+        return PanopticMasks(np.where(labels < n, labels, 0).astype(np.int32), cls, thing, score)
+
+    def _integrate(self, frame: RGBDFrame, masks: PanopticMasks | None) -> None:
+        try:
+            if masks is not None and masks.labels.shape != frame.depth.shape:
+                self.get_logger().error("segmentation labels do not match the image size; ignored")
+                masks = None
+            self.mapper.integrate(frame, masks)
+            self.counters["integrated"] += 1
+            self._changed = True
+        except (ValueError, DatasetError) as exc:
+            self.counters["integration_error"] += 1
+            self.get_logger().error(f"frame not integrated: {exc}", throttle_duration_sec=5.0)
+
+    # ------------------------------------------------------------------ outputs
+    def _entities_msg(self, include_meshes: bool) -> PanopticEntityArray:
+        ents = self.mapper.entities(with_meshes=True)
+        msg = PanopticEntityArray()
+        msg.header.frame_id = self.map_frame
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.entities = [entity_to_msg(e, include_meshes) for e in ents]
+        ids = {e.id for e in ents}
+        msg.removed_ids = sorted(i for i in self._published_revision if i not in ids)
+        self._published_revision = {e.id: e.revision for e in ents}
+        return msg, ents
+
+    def _publish(self) -> None:
+        if not self._changed:
+            return
+        self._changed = False
+        msg, ents = self._entities_msg(self.include_meshes)
+        self.pub_entities.publish(msg)
+        self.pub_markers.publish(map_markers(ents, self.map_frame, msg.header.stamp))
+
+    def _report(self) -> None:
+        self.get_logger().info(f"frames integrated {self.counters['integrated']}, keyframes {self.mapper.keyframes}, "
+                               f"counters {dict(self.counters)}")
+
+    # ------------------------------------------------------------------ services
+    def _srv_save(self, req: SaveMap.Request, res: SaveMap.Response) -> SaveMap.Response:
+        from panoptic_mapping.entities import save_entities
+
+        try:
+            self.mapper.save(req.path)
+            save_entities(self.mapper.entities(), req.path, self.map_frame)
+            res.success, res.message = True, f"map saved to {req.path}"
+        except OSError as exc:
+            res.success, res.message = False, f"cannot save to {req.path!r}: {exc}"
+        return res
+
+    def _srv_load(self, req: LoadMap.Request, res: LoadMap.Response) -> LoadMap.Response:
+        try:
+            self.mapper = PanopticMapper.load(req.path)
+            self._changed = True
+            res.success, res.message = True, f"map loaded from {req.path}"
+        except (OSError, ValueError, ConfigError) as exc:
+            res.success, res.message = False, f"cannot load {req.path!r}: {exc} (the current map is kept)"
+        return res
+
+    def _srv_reset(self, _req: ResetMap.Request, res: ResetMap.Response) -> ResetMap.Response:
+        self.mapper = PanopticMapper(self.config, class_metas())
+        self.pending.clear()
+        self.queue.clear()
+        self._changed = True
+        res.success, res.message = True, "map reset"
+        return res
+
+    def _srv_extract(self, req: ExtractEntities.Request, res: ExtractEntities.Response) -> ExtractEntities.Response:
+        res.entities, _ = self._entities_msg(req.include_meshes)
+        res.success, res.message = True, f"{len(res.entities.entities)} entities"
+        return res
+
+
+def main(args: list[str] | None = None) -> int:
+    ensure_ros_environment()
+    rclpy.init(args=args)
+    node = MapperNode()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

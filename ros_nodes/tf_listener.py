@@ -1,0 +1,26 @@
+"""A TF listener on the core's TransformBuffer (tf2_ros is not on PyPI; this works everywhere)."""
+
+from __future__ import annotations
+
+from rclpy.node import Node
+from tf2_msgs.msg import TFMessage
+
+from panoptic_mapping.dataio.transforms import TransformBuffer
+from ros_nodes.conversions import stamp_to_ns
+from ros_nodes.qos import TF_DYNAMIC, TF_STATIC
+
+
+class TFListener:
+    """Feeds /tf and /tf_static into a TransformBuffer with a bounded history per dynamic edge."""
+
+    def __init__(self, node: Node, max_extrapolation_s: float = 0.05, max_gap_s: float = 1.0,
+                 max_samples_per_edge: int = 2000):
+        self.buffer = TransformBuffer(int(max_extrapolation_s * 1e9), int(max_gap_s * 1e9), max_samples_per_edge)
+        node.create_subscription(TFMessage, "/tf", lambda m: self._on_tf(m, False), TF_DYNAMIC)
+        node.create_subscription(TFMessage, "/tf_static", lambda m: self._on_tf(m, True), TF_STATIC)
+
+    def _on_tf(self, msg: TFMessage, static: bool) -> None:
+        for tr in msg.transforms:
+            t, q = tr.transform.translation, tr.transform.rotation
+            self.buffer.add(tr.header.frame_id, tr.child_frame_id, stamp_to_ns(tr.header.stamp),
+                            (t.x, t.y, t.z), (q.x, q.y, q.z, q.w), static=static)

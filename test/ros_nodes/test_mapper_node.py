@@ -1,0 +1,80 @@
+"""The mapper node fed by a real bag over DDS (player -> mapper <-> segmentation service) produces entities."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+import yaml
+
+from scene_recon.synthetic.generate import GenerateConfig, generate_recording
+from scene_recon.synthetic.scene import GroundTruthScene
+
+pytestmark = pytest.mark.ros
+
+
+def _small_recording(path):
+    cfg = GenerateConfig(objects=6, frames=30, seed=3)
+    cam = cfg.sensor.camera
+    cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy = 320, 240, 262.5, 262.5, 159.5, 119.5
+    return generate_recording(path, cfg, progress=False)
+
+
+def test_mapper_node_maps_a_bag_with_the_segmentation_service(tmp_path):
+    import rclpy
+
+    from ros_nodes.entity_conversions import msg_to_entity
+    from scene_recon_interfaces.srv import ExtractEntities, SaveMap, SegmentImage
+
+    summary = _small_recording(tmp_path / "rec")
+    gt = GroundTruthScene.load(summary["ground_truth"])
+    mapper_cfg = tmp_path / "mapper.yaml"
+    mapper_cfg.write_text(yaml.safe_dump({"downsample": 1, "keyframes": {"min_translation_m": 0.1}}))
+    domain = str(180 + os.getpid() % 40)
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=domain)
+    os.environ["ROS_DOMAIN_ID"] = domain
+    py = sys.executable
+    procs = [
+        subprocess.Popen([py, "-m", "ros_nodes.segmentation_service", "--ros-args", "-p", "backend:=oracle",
+                          "-p", f"ground_truth:={summary['ground_truth']}", "-p", "noise_level:=clean"],
+                         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
+        subprocess.Popen([py, "-m", "ros_nodes.mapper_node", "--ros-args", "-p", f"config_file:={mapper_cfg}",
+                          "-p", "publish_period_s:=1.0"],
+                         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
+    ]
+    rclpy.init()
+    node = rclpy.create_node("mapper_checker")
+    try:
+        extract = node.create_client(ExtractEntities, "extract_entities")
+        save = node.create_client(SaveMap, "save_map")
+        seg_ready = node.create_client(SegmentImage, "segment_image")
+        assert extract.wait_for_service(timeout_sec=60) and seg_ready.wait_for_service(timeout_sec=60)
+        player = subprocess.run(
+            [py, "-m", "ros_nodes.rgbd_player", "--ros-args", "-p", f"source:={summary['bag']}", "-p", "rate:=1.0",
+             "-p", "wait_for_subscribers:=2", "-p", "labels_topic_in:=/ground_truth/panoptic_labels"],
+            env=env, capture_output=True, text=True, timeout=120)
+        assert player.returncode == 0, player.stdout + player.stderr
+        time.sleep(3.0)  # let the mapper drain its queue
+        future = extract.call_async(ExtractEntities.Request(include_meshes=True))
+        rclpy.spin_until_future_complete(node, future, timeout_sec=60)
+        res = future.result()
+        assert res is not None and res.success
+        ents = [msg_to_entity(m) for m in res.entities.entities]
+        fut = save.call_async(SaveMap.Request(path=str(tmp_path / "saved")))
+        rclpy.spin_until_future_complete(node, fut, timeout_sec=60)
+        assert fut.result().success and (tmp_path / "saved" / "map.npz").is_file()
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        for p in procs:
+            p.terminate()
+        logs = [p.communicate(timeout=20)[0] for p in procs]
+    seen_classes = {e.class_name for e in gt.entities if e.visible_pixels > 2000}
+    mapped = {e.class_name for e in ents}
+    assert "floor" in mapped, logs[1][-2000:]
+    assert len(mapped & seen_classes) >= 3, (mapped, seen_classes, logs[1][-2000:])
+    assert all(len(e.vertices) > 0 and len(e.faces) > 0 for e in ents)
+    assert mapped <= {e.class_name for e in gt.entities}
