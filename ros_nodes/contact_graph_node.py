@@ -1,0 +1,298 @@
+"""`contact_graph_node`: the contact-graph builder (paper Sec. 2) as a ROS 2 node over ``scene_graph``.
+
+Input: ``panoptic_entities`` (scene_recon_interfaces/PanopticEntityArray) from the mapper. Each
+entity carries a ``revision``; only entities whose revision changed are re-initialised (box,
+planes), ``removed_ids`` are dropped, then the relations are rebuilt over all nodes.
+Outputs (latched, so RViz and late joiners get the current graph): ``contact_graph``
+(scene_recon_interfaces/ContactGraph) and ``contact_graph_markers`` (visualization_msgs/MarkerArray:
+boxes as LINE_LIST, supporting planes as thin CUBEs, support arrows parent -> child, labels).
+The frame id is the entity array's. Parameters: ``config_file`` / ``joints_file`` (YAML, empty:
+the repository defaults), ``min_period_s`` (rebuild at most this often), ``snapshot`` (true: an
+entity missing from a message is dropped too, not only those in ``removed_ids``).
+
+The message conversions live here too (the only ROS-facing code of the contact graph).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from urllib.parse import unquote, urlparse
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from scene_recon_interfaces.msg import ContactGraph as ContactGraphMsg
+from scene_recon_interfaces.msg import ContactGraphNode as ContactGraphNodeMsg
+from scene_recon_interfaces.msg import OrientedBox as OrientedBoxMsg
+from scene_recon_interfaces.msg import PanopticEntity, PanopticEntityArray, ProximalEdge
+from scene_recon_interfaces.msg import SupportEdge as SupportEdgeMsg
+from shape_msgs.msg import Plane as PlaneMsg
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from cad_replacement.cad.feature_types import Plane
+from scene_graph.box import GravityBox
+from scene_graph.builder import ContactGraphBuilder
+from scene_graph.classify import ARTICULATED, LAYOUT, RIGID, SCENE
+from scene_graph.config import load_scene_graph_config
+from scene_graph.entity import Entity, EntityError
+from scene_graph.graph import ContactGraph, GraphNode, SupportEdge
+from scene_graph.joints import load_support_joints
+from scene_graph.planes import SurfacePlane
+from scene_recon.ros_env import ensure_ros_environment
+
+NODE_TYPE = {SCENE: ContactGraphNodeMsg.TYPE_SCENE, LAYOUT: ContactGraphNodeMsg.TYPE_LAYOUT,
+             RIGID: ContactGraphNodeMsg.TYPE_RIGID, ARTICULATED: ContactGraphNodeMsg.TYPE_ARTICULATED}
+NODE_CATEGORY = {v: k for k, v in NODE_TYPE.items()}
+ENTITY_CATEGORY = {PanopticEntity.CATEGORY_LAYOUT: LAYOUT, PanopticEntity.CATEGORY_RIGID: RIGID,
+                   PanopticEntity.CATEGORY_ARTICULATED: ARTICULATED}
+JOINT_TYPE = {"fixed": SupportEdgeMsg.JOINT_FIXED, "floating": SupportEdgeMsg.JOINT_FLOATING}
+JOINT_NAME = {v: k for k, v in JOINT_TYPE.items()}
+#: Marker colours per category (RGBA).
+CATEGORY_RGBA = {LAYOUT: (0.6, 0.6, 0.6, 0.6), RIGID: (0.12, 0.47, 0.71, 1.0),
+                 ARTICULATED: (1.0, 0.5, 0.05, 1.0), SCENE: (0.2, 0.7, 0.2, 1.0)}
+#: Thickness (m) of the CUBE markers drawn for supporting planes.
+PLANE_MARKER_THICKNESS = 0.005
+
+LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+ENTITIES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE)
+
+
+# ---------------------------------------------------------------------------------------------- conversions
+def entity_from_msg(msg: PanopticEntity) -> Entity:
+    """A PanopticEntity (inline mesh, or a file:// / plain-path ``mesh_uri``) as a builder entity."""
+    v = np.array([[p.x, p.y, p.z] for p in msg.mesh.vertices], np.float64).reshape(-1, 3)
+    f = np.array([t.vertex_indices for t in msg.mesh.triangles], np.int64).reshape(-1, 3)
+    if len(v) == 0 and msg.mesh_uri:
+        import trimesh
+
+        uri = urlparse(msg.mesh_uri)
+        path = Path(unquote(uri.path)) if uri.scheme in ("file", "") else None
+        if path is None or not path.is_file():
+            raise EntityError(f"entity {msg.id}: cannot read mesh_uri {msg.mesh_uri!r}")
+        geom = trimesh.load(path, process=False)
+        v = np.asarray(geom.vertices, np.float64)
+        f = np.asarray(getattr(geom, "faces", np.zeros((0, 3))), np.int64)
+    name = f"{msg.class_name or 'entity'}_{msg.id}"
+    return Entity(int(msg.id), name, msg.class_name or "unknown", v, f, class_id=int(msg.class_id),
+                  category=ENTITY_CATEGORY.get(msg.category, ""), is_thing=bool(msg.is_thing),
+                  confidence=float(msg.confidence), revision=int(msg.revision))
+
+
+def box_to_msg(box: GravityBox | None) -> OrientedBoxMsg:
+    msg = OrientedBoxMsg()
+    msg.center.orientation.w = 1.0
+    if box is None:
+        return msg
+    c = box.center
+    msg.center = Pose(position=Point(x=float(c[0]), y=float(c[1]), z=float(c[2])),
+                      orientation=Quaternion(z=float(np.sin(box.yaw / 2)), w=float(np.cos(box.yaw / 2))))
+    msg.size = Vector3(x=float(box.size[0]), y=float(box.size[1]), z=float(box.size[2]))
+    return msg
+
+
+def box_from_msg(msg: OrientedBoxMsg) -> GravityBox:
+    q = msg.center.orientation
+    yaw = 2.0 * np.arctan2(q.z, q.w)  # a pure yaw quaternion (gravity-aligned box)
+    p, s = msg.center.position, msg.size
+    return GravityBox([p.x, p.y, p.z], [abs(s.x), abs(s.y), abs(s.z)], float(yaw))
+
+
+def plane_to_msg(plane: Plane | None) -> PlaneMsg:
+    if plane is None:
+        return PlaneMsg(coef=[0.0, 0.0, 0.0, 0.0])
+    return PlaneMsg(coef=[float(x) for x in plane.as_vector()])
+
+
+def plane_from_msg(msg: PlaneMsg) -> Plane | None:
+    coef = np.asarray(msg.coef, np.float64)
+    if np.linalg.norm(coef[:3]) < 1e-12:
+        return None
+    return Plane(normal=coef[:3], d=float(coef[3]))
+
+
+def graph_to_msg(graph: ContactGraph, header: Header) -> ContactGraphMsg:
+    """scene_graph.ContactGraph -> scene_recon_interfaces/ContactGraph (root node included)."""
+    out = ContactGraphMsg(header=header, root_id=int(graph.root_id))
+    for nid in sorted(graph.nodes):
+        n = graph.nodes[nid]
+        out.nodes.append(ContactGraphNodeMsg(
+            id=int(nid), name=n.name, node_type=NODE_TYPE.get(n.category, ContactGraphNodeMsg.TYPE_RIGID),
+            class_id=int(n.class_id), class_name=n.class_name, instance_id=int(nid), box=box_to_msg(n.box),
+            planes=[plane_to_msg(p.plane) for p in n.planes], cad_id=n.cad_id))
+    for child in sorted(graph.supports):
+        e = graph.supports[child]
+        out.support_edges.append(SupportEdgeMsg(parent_id=int(e.parent_id), child_id=int(child),
+                                                plane=plane_to_msg(e.plane), score=float(e.score),
+                                                joint_type=JOINT_TYPE.get(e.joint, SupportEdgeMsg.JOINT_FIXED)))
+    out.proximal_edges = [ProximalEdge(first_id=int(a), second_id=int(b)) for a, b in graph.proximal]
+    return out
+
+
+def graph_from_msg(msg: ContactGraphMsg) -> ContactGraph:
+    """scene_recon_interfaces/ContactGraph -> scene_graph.ContactGraph (refined boxes only)."""
+    nodes = {}
+    for n in msg.nodes:
+        category = NODE_CATEGORY.get(n.node_type, RIGID)
+        box = None if category == SCENE else box_from_msg(n.box)
+        planes = [SurfacePlane(p) for p in (plane_from_msg(x) for x in n.planes) if p is not None]
+        nodes[int(n.id)] = GraphNode(int(n.id), n.name, n.class_name, category, int(n.class_id), box, box, planes,
+                                     cad_id=n.cad_id)
+    supports = {int(e.child_id): SupportEdge(int(e.parent_id), int(e.child_id), "support", float(e.score),
+                                             plane=plane_from_msg(e.plane),
+                                             joint=JOINT_NAME.get(e.joint_type, "fixed"))
+                for e in msg.support_edges}
+    graph = ContactGraph(nodes, supports, [(int(p.first_id), int(p.second_id)) for p in msg.proximal_edges],
+                         frame_id=msg.header.frame_id, root_id=int(msg.root_id))
+    graph.validate()
+    return graph
+
+
+# ---------------------------------------------------------------------------------------------- markers
+def _rgba(category: str, alpha: float | None = None) -> ColorRGBA:
+    r, g, b, a = CATEGORY_RGBA.get(category, (0.3, 0.7, 0.3, 1.0))
+    return ColorRGBA(r=r, g=g, b=b, a=a if alpha is None else alpha)
+
+
+def _marker(kind: int, ns: str, mid: int, header: Header) -> Marker:
+    m = Marker(type=kind, action=Marker.ADD, ns=ns, id=int(mid), header=header)
+    m.pose.orientation.w = 1.0
+    return m
+
+
+def box_lines(box: GravityBox) -> list[Point]:
+    """The 12 edges of a box as 24 LINE_LIST points."""
+    c = box.corners()
+    edges = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
+    return [Point(x=float(c[i][0]), y=float(c[i][1]), z=float(c[i][2])) for e in edges for i in e]
+
+
+def graph_markers(graph: ContactGraph, header: Header) -> MarkerArray:
+    """RViz view: boxes (LINE_LIST), contact patches of supporting planes (thin CUBE), arrows, labels."""
+    out = MarkerArray()
+    out.markers.append(Marker(action=Marker.DELETEALL, header=header))
+    for nid, n in graph.nodes.items():
+        if n.box is None:
+            continue
+        m = _marker(Marker.LINE_LIST, "boxes", nid, header)
+        m.scale.x = 0.01
+        m.color = _rgba(n.category)
+        m.points = box_lines(n.box)
+        out.markers.append(m)
+        t = _marker(Marker.TEXT_VIEW_FACING, "labels", nid, header)
+        t.pose.position = Point(x=float(n.box.center[0]), y=float(n.box.center[1]), z=float(n.box.z_max + 0.08))
+        t.scale.z = 0.08
+        t.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
+        t.text = n.name
+        out.markers.append(t)
+    for child, e in graph.supports.items():
+        node, parent = graph.nodes[child], graph.nodes.get(e.parent_id)
+        if node.box is None:
+            continue
+        if e.plane is not None and abs(e.plane.normal[2]) > 1e-9:
+            # The supporting plane where the child stands on it: a thin slab of the child's footprint.
+            c = node.box.center
+            h = -(e.plane.d + e.plane.normal[0] * c[0] + e.plane.normal[1] * c[1]) / e.plane.normal[2]
+            p = _marker(Marker.CUBE, "support_planes", child, header)
+            p.pose.position = Point(x=float(c[0]), y=float(c[1]), z=float(h))
+            p.pose.orientation = Quaternion(z=float(np.sin(node.box.yaw / 2)), w=float(np.cos(node.box.yaw / 2)))
+            p.scale = Vector3(x=float(max(node.box.size[0], 0.01)), y=float(max(node.box.size[1], 0.01)),
+                              z=PLANE_MARKER_THICKNESS)
+            p.color = ColorRGBA(r=0.2, g=0.8, b=0.2, a=0.5)
+            out.markers.append(p)
+        if parent is None or parent.box is None:
+            continue
+        a = _marker(Marker.ARROW, "supports", child, header)
+        pc, cc = parent.box.center, node.box.center
+        a.points = [Point(x=float(pc[0]), y=float(pc[1]), z=float(parent.box.z_max)),
+                    Point(x=float(cc[0]), y=float(cc[1]), z=float(cc[2]))]
+        a.scale = Vector3(x=0.01, y=0.03, z=0.05)
+        a.color = ColorRGBA(r=0.85, g=0.15, b=0.15, a=1.0) if e.joint == "fixed" else ColorRGBA(r=0.9, g=0.8, b=0.1,
+                                                                                                   a=1.0)
+        out.markers.append(a)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- node
+class ContactGraphNode(Node):
+    def __init__(self) -> None:
+        super().__init__("contact_graph")
+        p = self.declare_parameter
+        cfg = load_scene_graph_config(p("config_file", "").value or None)
+        joints = load_support_joints(p("joints_file", "").value or cfg.support_joints or None)
+        self.min_period_s = float(p("min_period_s", 0.0).value)
+        self.snapshot = bool(p("snapshot", False).value)
+        self.builder = ContactGraphBuilder(cfg, joints)
+        self.pub_graph = self.create_publisher(ContactGraphMsg, p("graph_topic", "contact_graph").value, LATCHED)
+        self.pub_markers = self.create_publisher(MarkerArray, p("markers_topic", "contact_graph_markers").value,
+                                                 LATCHED)
+        self.create_subscription(PanopticEntityArray, p("entities_topic", "panoptic_entities").value,
+                                 self._on_entities, ENTITIES_QOS)
+        self.counters = {"messages": 0, "rebuilt_entities": 0, "builds": 0, "bad_entities": 0}
+        self._header: Header | None = None
+        self._dirty = False
+        self._last_build = -float("inf")
+        self.create_timer(0.05, self._maybe_build)
+
+    def _on_entities(self, msg: PanopticEntityArray) -> None:
+        self.counters["messages"] += 1
+        self.builder.remove(int(i) for i in msg.removed_ids)
+        if self.snapshot:
+            present = {int(e.id) for e in msg.entities}
+            self.builder.remove(i for i in self.builder.ids if i not in present)
+        fresh = []
+        for e in msg.entities:
+            known = int(e.id) in self.builder.ids
+            if known and self.builder.features(int(e.id)).entity.revision == int(e.revision):
+                continue  # unchanged: skip the (costly) mesh conversion too
+            try:
+                fresh.append(entity_from_msg(e))
+            except EntityError as exc:
+                self.counters["bad_entities"] += 1
+                self.get_logger().warning(str(exc), throttle_duration_sec=5.0)
+        try:
+            rebuilt = self.builder.update(fresh)
+        except EntityError as exc:
+            self.counters["bad_entities"] += 1
+            self.get_logger().error(f"entities rejected: {exc}")
+            return
+        self.counters["rebuilt_entities"] += len(rebuilt)
+        self._header = msg.header
+        self._dirty = True
+        self._maybe_build()
+
+    def _maybe_build(self) -> None:
+        if not self._dirty or self._header is None or time.monotonic() - self._last_build < self.min_period_s:
+            return
+        self._dirty = False
+        self._last_build = time.monotonic()
+        t0 = time.perf_counter()
+        graph = self.builder.build(frame_id=self._header.frame_id or "map")
+        self.pub_graph.publish(graph_to_msg(graph, self._header))
+        self.pub_markers.publish(graph_markers(graph, self._header))
+        self.counters["builds"] += 1
+        self.get_logger().info(f"contact graph: {len(graph.nodes) - 1} nodes, {len(graph.proximal)} proximal, "
+                               f"{1000 * (time.perf_counter() - t0):.0f} ms; {self.counters}")
+
+
+def main(args: list[str] | None = None) -> int:
+    ensure_ros_environment()
+    rclpy.init(args=args)
+    node = ContactGraphNode()
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
