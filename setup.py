@@ -46,6 +46,7 @@ setup(
         "console_scripts": [
             "scene-recon = scene_recon.cli:main",
             "rgbd_player = ros_nodes.rgbd_player:main",
+            "contact_graph_node = ros_nodes.contact_graph_node:main",
             "panoptic_mapper = ros_nodes.mapper_node:main",
             "segmentation_service = ros_nodes.segmentation_service:main",
         ],
