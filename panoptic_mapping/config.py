@@ -110,7 +110,11 @@ class KeyframeConfig:
 class ExtractionConfig:
     """Entity extraction (Sec. 3.4)."""
 
+    #: Entities with fewer mesh vertices are dropped.
     min_entity_voxels: int = 50
+    #: Also output the reconstructed surface no entity claims, as entity 0 of class -1 ("unknown"):
+    #: evaluation must know that geometry was observed there even if it was not recognised.
+    include_unknown: bool = True
     #: Ignore classes with this id (the "unknown/background" class).
     background_class_id: int = -1
 

@@ -31,6 +31,8 @@ from panoptic_mapping.tsdf_map import LabeledTSDF
 
 log = logging.getLogger(__name__)
 MAP_FORMAT_VERSION = 1
+#: Id of the entity holding reconstructed surface no entity claims (class -1, "unknown").
+UNKNOWN_ENTITY_ID = 0
 
 
 @dataclass
@@ -319,12 +321,20 @@ class PanopticMapper:
             ents.append(MappedEntity(eid, c, meta.name, eid if meta.is_thing else 0, meta.is_thing, meta.category,
                                      float(conf), 0, int(revision)))
             entity_of_label[labels] = eid
-        if with_meshes and ents:
-            self._attach_meshes(ents, entity_of_label)
+        unknown = None
+        if with_meshes and self.config.extraction.include_unknown:
+            # all reconstructed surface that no entity claims: evaluation must see it as geometry
+            unknown = MappedEntity(UNKNOWN_ENTITY_ID, BACKGROUND, "unknown", 0, False, "unknown", 0.0)
+        if with_meshes:
+            self._attach_meshes(ents, entity_of_label, unknown)
         min_v = self.config.extraction.min_entity_voxels
-        return [e for e in ents if not with_meshes or len(e.vertices) >= min_v]
+        out = [e for e in ents if not with_meshes or len(e.vertices) >= min_v]
+        if unknown is not None and len(unknown.faces):
+            out.append(unknown)
+        return out
 
-    def _attach_meshes(self, ents: list[MappedEntity], entity_of_label: np.ndarray) -> None:
+    def _attach_meshes(self, ents: list[MappedEntity], entity_of_label: np.ndarray,
+                       unknown: MappedEntity | None = None) -> None:
         v, f, vlab = self.tsdf.extract_mesh()
         if len(f) == 0:
             return
@@ -333,6 +343,9 @@ class PanopticMapper:
         ent_v = np.where(canon < len(entity_of_label), entity_of_label[np.clip(canon, 0, len(entity_of_label) - 1)], 0)
         ent_f = ent_v[f]
         same = (ent_f[:, 0] == ent_f[:, 1]) & (ent_f[:, 1] == ent_f[:, 2]) & (ent_f[:, 0] > 0)
+        if unknown is not None and np.any(~same):
+            used, inv = np.unique(f[~same].ravel(), return_inverse=True)
+            unknown.vertices, unknown.faces, unknown.num_voxels = v[used], inv.reshape(-1, 3), int(len(used))
         f, eid = f[same], ent_f[same, 0]
         order = np.argsort(eid, kind="stable")
         f, eid = f[order], eid[order]

@@ -42,6 +42,8 @@ class RGBDPlayer(Node):
         # Start only once this many subscribers listen to the color topic (0: at once), so that no
         # frame is lost to DDS discovery when a mapper is launched beside the player.
         self.wait_for_subscribers = int(p("wait_for_subscribers", 0).value)
+        #: The same for the ground-truth label topic (an oracle segmentation service listens there).
+        self.wait_for_label_subscribers = int(p("wait_for_label_subscribers", 0).value)
         self.wait_timeout_s = float(p("wait_timeout_s", 30.0).value)
         prefix = p("topic_prefix", "/camera").value.rstrip("/")
         self.pub_color = self.create_publisher(Image, f"{prefix}/color/image_raw", SENSOR_RELIABLE)
@@ -77,12 +79,14 @@ class RGBDPlayer(Node):
     def _tick(self) -> None:
         if self.finished or self._frames is None:
             return
-        if self._t0_wall is None and self.pub_color.get_subscription_count() < self.wait_for_subscribers:
+        if self._t0_wall is None and (
+            self.pub_color.get_subscription_count() < self.wait_for_subscribers
+            or self.pub_labels.get_subscription_count() < self.wait_for_label_subscribers
+        ):
             if time.monotonic() - self._created < self.wait_timeout_s:
                 return
-            self.get_logger().warning(f"no {self.wait_for_subscribers} subscriber(s) after "
-                                      f"{self.wait_timeout_s:.0f} s; playing anyway")
-            self.wait_for_subscribers = 0
+            self.get_logger().warning(f"subscribers missing after {self.wait_timeout_s:.0f} s; playing anyway")
+            self.wait_for_subscribers = self.wait_for_label_subscribers = 0
         if self._pending is None:
             try:
                 self._pending = next(self._frames)

@@ -145,6 +145,9 @@ def test_mapper_tracks_instances_across_frames_and_extracts_entities(tiny_scene)
     mapper = _mapper()
     _run(mapper, renderer, shuffle_ids=True)
     ents = mapper.entities()
+    unknown = [e for e in ents if e.class_id == BACKGROUND]
+    assert len(unknown) <= 1 and all(e.id == 0 and e.class_name == "unknown" for e in unknown)
+    ents = [e for e in ents if e.class_id != BACKGROUND]
     by_class = {}
     for e in ents:
         by_class.setdefault(e.class_name, []).append(e)
