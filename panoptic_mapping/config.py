@@ -115,6 +115,9 @@ class ExtractionConfig:
     #: Also output the reconstructed surface no entity claims, as entity 0 of class -1 ("unknown"):
     #: evaluation must know that geometry was observed there even if it was not recognised.
     include_unknown: bool = True
+    #: Reconstructed vertices no entity claims join the nearest claimed vertex's entity within this
+    #: radius (m): the unvoted fringe along depth edges. 0 disables.
+    fill_radius_m: float = 0.04
     #: Ignore classes with this id (the "unknown/background" class).
     background_class_id: int = -1
 

@@ -341,6 +341,7 @@ class PanopticMapper:
         lut = self.counts.canonical_lut(len(entity_of_label))
         canon = lut[np.clip(vlab, 0, len(lut) - 1)]
         ent_v = np.where(canon < len(entity_of_label), entity_of_label[np.clip(canon, 0, len(entity_of_label) - 1)], 0)
+        ent_v = self._fill_unclaimed(v, ent_v)
         ent_f = ent_v[f]
         same = (ent_f[:, 0] == ent_f[:, 1]) & (ent_f[:, 1] == ent_f[:, 2]) & (ent_f[:, 0] > 0)
         if unknown is not None and np.any(~same):
@@ -359,6 +360,25 @@ class PanopticMapper:
             e.vertices = v[used]
             e.faces = inv.reshape(-1, 3)
             e.num_voxels = int(len(used))
+
+    def _fill_unclaimed(self, v: np.ndarray, ent_v: np.ndarray) -> np.ndarray:
+        """Unclaimed vertices within `fill_radius_m` of a claimed one join its entity.
+
+        Labels are voted from segment pixels only; the fringe along depth edges (silhouettes,
+        sensor dropouts) is reconstructed but rarely voted, and would otherwise be cut off.
+        """
+        r = self.config.extraction.fill_radius_m
+        free = ent_v == 0
+        if r <= 0 or not np.any(free) or np.all(free):
+            return ent_v
+        from scipy.spatial import cKDTree
+
+        claimed = np.flatnonzero(~free)
+        dist, idx = cKDTree(v[claimed]).query(v[free], k=1, distance_upper_bound=r)
+        ok = np.isfinite(dist)
+        out = ent_v.copy()
+        out[np.flatnonzero(free)[ok]] = ent_v[claimed[idx[ok]]]
+        return out
 
     def full_mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The whole map's mesh with canonical vertex labels."""

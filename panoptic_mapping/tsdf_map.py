@@ -74,6 +74,32 @@ class LabeledTSDF:
         flat = b * self.res**3 + off[:, 2] * self.res**2 + off[:, 1] * self.res + off[:, 0]
         return np.where(b >= 0, flat, -1)
 
+    def labels_around(self, points: np.ndarray) -> np.ndarray:
+        """Most frequent non-zero label among the 8 voxels around each point (0 if none).
+
+        Mesh vertices lie on the zero crossing *between* voxels; the nearest voxel alone is often
+        one that was never voted (votes land where the noisy depth points fell).
+        """
+        if len(points) == 0:
+            return np.zeros(0, np.int32)
+        base = np.floor(points / self.vs)
+        corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], np.float64)
+        q = ((base[:, None, :] + corners[None]) * self.vs).reshape(-1, 3)
+        lab = self.labels_at(q).reshape(len(points), 8).astype(np.int64)
+        lab_sorted = np.sort(lab, axis=1)
+        # run lengths of equal labels per row; pick the longest non-zero run
+        best = np.zeros(len(points), np.int64)
+        best_n = np.zeros(len(points), np.int64)
+        run = np.ones(len(points), np.int64)
+        for c in range(8):
+            if c > 0:
+                same = lab_sorted[:, c] == lab_sorted[:, c - 1]
+                run = np.where(same, run + 1, 1)
+            better = (lab_sorted[:, c] > 0) & (run > best_n)
+            best = np.where(better, lab_sorted[:, c], best)
+            best_n = np.where(better, run, best_n)
+        return best.astype(np.int32)
+
     def labels_at(self, points: np.ndarray) -> np.ndarray:
         """Global segment label of the voxel nearest each point (0 where unknown)."""
         flat = self._flat_indices(points)
@@ -142,7 +168,7 @@ class LabeledTSDF:
             return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int32)
         v = mesh.vertex.positions.numpy().astype(np.float64)
         f = mesh.triangle.indices.numpy().astype(np.int64)
-        return v, f, self.labels_at(v)
+        return v, f, self.labels_around(v)
 
     @property
     def num_blocks(self) -> int:
