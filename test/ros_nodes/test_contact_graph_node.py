@@ -113,3 +113,34 @@ def test_node_builds_and_updates_the_contact_graph_over_dds():
             proc.kill()
             out, _ = proc.communicate()
     assert "contact graph:" in out, out
+
+
+def test_message_conversions_round_trip(tmp_path):
+    from scene_recon_interfaces.msg import PanopticEntity
+    from std_msgs.msg import Header
+
+    from ros_nodes.contact_graph_node import entity_from_msg, graph_from_msg, graph_markers, graph_to_msg
+    from scene_graph.builder import build_contact_graph
+
+    msgs = [_entity_msg(1, "floor", [-2, -2, -0.05], [2, 2, 0], category=PanopticEntity.CATEGORY_LAYOUT),
+            _entity_msg(2, "table", [0, 0, 0], [1.0, 0.8, 0.75]),
+            _entity_msg(3, "cup", [0.4, 0.3, 0.75], [0.48, 0.38, 0.85])]
+    by_uri = PanopticEntity(id=4, class_name="box", revision=3, mesh_uri=f"file://{tmp_path / 'box.ply'}")
+    trimesh.creation.box(extents=[0.2, 0.2, 0.2]).apply_translation([-1, -1, 0.1]).export(tmp_path / "box.ply")
+    entities = [entity_from_msg(m) for m in [*msgs, by_uri]]
+    assert entities[0].category == "layout" and entities[3].revision == 3 and len(entities[3].faces) == 12
+    graph = build_contact_graph(entities)
+    msg = graph_to_msg(graph, Header(frame_id="map"))
+    assert msg.root_id == 0 and len(msg.nodes) == 5 and len(msg.support_edges) == 4
+    back = graph_from_msg(msg)
+    assert back.parents() == graph.parents()
+    assert back.proximal == graph.proximal
+    for nid, node in graph.nodes.items():
+        assert back.nodes[nid].name == node.name and back.nodes[nid].category == node.category
+        if node.box is not None:
+            assert back.nodes[nid].box.iou(node.box) == pytest.approx(1.0)
+    assert back.supports[3].joint == "floating" and back.supports[2].joint == "fixed"
+    markers = graph_markers(graph, Header(frame_id="map"))
+    assert markers.markers[0].action == markers.markers[0].DELETEALL
+    boxes = [m for m in markers.markers if m.ns == "boxes"]
+    assert len(boxes) == 4 and all(len(m.points) == 24 for m in boxes)
