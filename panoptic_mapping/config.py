@@ -41,6 +41,9 @@ class FusionConfig:
     split: bool = True
     split_mask_coverage: float = 0.9
     split_segment_share: float = 0.5
+    #: Our extension: the mask may be spread over several segments it is a minority of, as long as
+    #: together they contain it (> split_mask_coverage); false = the paper's single-segment rule.
+    split_across_segments: bool = True
     #: Our extension (full mode): a mask lying mostly on depth-edge pixels (small objects, which the
     #: convexity segmentation shreds into edges) becomes a segment of its own.
     rescue_edge_masks: bool = True

@@ -98,7 +98,15 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
         ov = _overlap(geo, pan, n_g, n_m)
         size_m = np.maximum(ov.sum(axis=0), 1)
         size_g = np.maximum(ov.sum(axis=1), 1)
-        cand = (ov / size_m[None, :] > cfg.split_mask_coverage) & (ov / size_g[:, None] < cfg.split_segment_share)
+        minority = ov / size_g[:, None] < cfg.split_segment_share
+        if cfg.split_across_segments:
+            # extension: the mask lies > coverage inside segments it is a minority of (e.g. a book
+            # on a shelf seen across the board and the back panel): carve each piece out
+            minority[0, :] = False
+            covered = np.where(minority, ov, 0).sum(axis=0) / size_m
+            cand = minority & (covered[None, :] > cfg.split_mask_coverage) & (ov >= max(min_points // 4, 1))
+        else:  # the paper: one segment fully contains the mask
+            cand = (ov / size_m[None, :] > cfg.split_mask_coverage) & minority
         cand[0, :] = False
         cand[:, 0] = False
         gs, ms = np.nonzero(cand)
