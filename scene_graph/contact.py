@@ -3,12 +3,12 @@
 A(v_p, v_c) is the area of the rectangle containing the parent's geometry near the plane within
 the child's box, over the child's bottom area. Measured on a grid of cells over the child's box
 footprint: a cell is *covered* by a plane when one of the plane's region triangles (or points)
-contains it, and *owned* by the highest covering plane at or below the child's bottom - the
-surface the child can actually touch there. That ownership is what makes a book stacked on a
-book, or a cup on a shelf level, pick the surface right under it instead of a larger one
-further down that it never touches. The rectangle of a plane is the bounding box (in the child's
-box axes) of its owned cells, so holes in a mapped surface (the unseen patch under an object)
-do not shrink the contact.
+contains it. Planes claim cells from the highest down (all at or below the child's bottom): a
+plane's rectangle is the bounding box (in the child's box axes) of the covered cells no higher
+plane has claimed, and it then claims every cell inside that rectangle. So the surface the child
+can actually touch wins - a book stacked on a book, a cup on a shelf level, not the larger
+surface further down it never touches - and holes in a mapped surface (the unseen patch right
+under an object) neither shrink its contact nor hand the hole to the surface below.
 """
 
 from __future__ import annotations
@@ -106,3 +106,18 @@ def owned_rectangle_ratio(grid: FootprintGrid, owned: NDArray[np.bool_]) -> floa
     width = float(np.ptp(pts[:, 0]) + cu)
     depth = float(np.ptp(pts[:, 1]) + cv)
     return float(np.clip(width * depth / area, 0.0, 1.0))
+
+
+def claimed_ratios(grid: FootprintGrid, covers: NDArray[np.bool_], heights: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Eq. (2) ratio of each of K planes ((K, G) covered cells, (K,) heights), higher planes first."""
+    ratios = np.zeros(len(heights))
+    claimed = np.zeros(covers.shape[1], dtype=bool)
+    for k in np.argsort(-np.asarray(heights), kind="stable"):
+        owned = covers[k] & ~claimed
+        if not owned.any():
+            continue
+        ratios[k] = owned_rectangle_ratio(grid, owned)
+        lo, hi = grid.local[owned].min(axis=0), grid.local[owned].max(axis=0)
+        inside = np.all((grid.local >= lo - 1e-9) & (grid.local <= hi + 1e-9), axis=1)
+        claimed |= inside
+    return ratios

@@ -12,7 +12,8 @@ reduced resolution within the sensor's range (paper: rays 0.1-4.0 m) and faces h
 (truncation 4 voxels, 4 cm in the paper) the lowest few centimetres of an object standing on a
 surface fuse with that surface and take its label, so an object's mapped mesh ends above its
 support (Fig. 3d's floating chair box). Faces lying entirely within the band above the object's
-placement height are cut off. Not modelled: depth noise, TSDF smoothing, thin parts vanishing.
+placement height are cut off. ``vertex_noise`` jitters the kept vertices (a crude stand-in for
+depth noise). Not modelled: TSDF smoothing, thin parts vanishing, segmentation errors.
 """
 
 from __future__ import annotations
@@ -39,6 +40,9 @@ class ObservationConfig:
     min_hits: int = 1
     #: Height (m) above an object's support surface whose faces fuse with the support (0: off).
     contact_band: float = 0.0
+    #: Standard deviation (m) of Gaussian noise added to the kept vertices (0: exact geometry).
+    vertex_noise: float = 0.0
+    seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -108,6 +112,7 @@ def observed_entities(scene: GroundTruthScene, views: list[CameraView],
                 np.add.at(hits[k], pid[gid == g], 1)
     out: list[Entity] = []
     stats: dict[str, float] = {}
+    rng = np.random.default_rng(cfg.seed)
     for e, (v, f), h in zip(scene.entities, meshes, hits, strict=True):
         seen = h >= cfg.min_hits
         sub = trimesh.Trimesh(v, f[seen], process=False)
@@ -120,5 +125,8 @@ def observed_entities(scene: GroundTruthScene, views: list[CameraView],
         sub.remove_unreferenced_vertices()
         full_area = float(trimesh.Trimesh(v, f, process=False).area)
         stats[e.name] = float(sub.area / full_area) if full_area > 0 else 0.0
+        if cfg.vertex_noise > 0.0:
+            sub = trimesh.Trimesh(sub.vertices + rng.normal(0.0, cfg.vertex_noise, sub.vertices.shape), sub.faces,
+                                  process=False)
         out.append(Entity.from_scene_entity(e, sub))
     return out, stats

@@ -27,7 +27,7 @@ from cad_replacement.cad.feature_types import Plane
 from .box import GravityBox
 from .classify import LAYOUT
 from .config import SupportConfig
-from .contact import footprint_grid, owned_rectangle_ratio, points_cover, triangles_cover
+from .contact import claimed_ratios, footprint_grid, points_cover, triangles_cover
 from .features import NodeFeatures
 from .planes import SurfacePlane
 from .polygon import EPS, polygon_distance
@@ -143,13 +143,10 @@ class SupportInference:
         if not entries:
             return []
         heights = np.array([h for _, _, h in entries])
-        cov = np.stack(covers)  # (K, G)
-        # Each cell belongs to the highest plane covering it: the surface the child can touch.
-        owner = np.argmax(np.where(cov, heights[:, None], -np.inf), axis=0)
-        valid = cov.any(axis=0)
+        ratios = claimed_ratios(grid, np.stack(covers), heights)  # Eq. (2), higher surfaces first
         out = []
         for k, (pid, sp, h) in enumerate(entries):
-            ratio = owned_rectangle_ratio(grid, valid & (owner == k))  # Eq. (2)
+            ratio = float(ratios[k])
             dist = bottom - h  # Eq. (1): D(v_c, pi) = p_c - (-d + s_c / 2)
             score = (1.0 - min(1.0, abs(dist) / cfg.distance_scale)) * ratio  # Eq. (3)
             out.append(SupportDecision(child.id, pid, "support", score, ratio, dist, sp))
