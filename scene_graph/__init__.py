@@ -1,1 +1,56 @@
-"""Contact graphs (paper Sec. 2): boxes, planes, support and proximal relations. ROS-free."""
+"""Contact graphs (paper Sec. 2): boxes, planes, support and proximal relations. ROS-free.
+
+Public API
+----------
+Input (``entity``, ``scene_io``):
+    Entity(id, name, class_name, vertices, faces=(), class_id=-1, category="", is_thing=True,
+           confidence=1.0, revision=0)            map frame, z up; id 0 is reserved for the root
+    entities_from_ground_truth(GroundTruthScene) -> [Entity]      complete meshes (cg_map setting)
+    load_source(path) -> EntitySource             ground-truth folder (scene.json) or mapped-scene
+    write_entities(folder, entities) / read_entities(folder)      folder (entities.json + meshes/<id>.ply)
+
+Building (``builder``; config ``config/scene_graph.yaml`` -> ``SceneGraphConfig``):
+    build_contact_graph(entities, cfg=None, joints=None, name="", frame_id="map") -> ContactGraph
+    ContactGraphBuilder(cfg, joints): .update(entities) (recomputes only new (id, revision)),
+        .remove(ids), .build() -> ContactGraph
+    Steps: fit_gravity_box (box_fit), detect_planes (planes: RANSAC reused from
+    cad_replacement + height groups), SupportInference (support: Eqs. (1)-(3), invisible planes,
+    floor/wall fallbacks), refine_box (refine), proximal_relations (proximal: sweep + exact test).
+
+Graph (``graph``): ContactGraph(nodes, supports, proximal) with GraphNode (box refined and
+    unrefined, planes) and SupportEdge (plane, score, joint); .validate(), .format_tree(),
+    .save(path) / ContactGraph.load(path) (JSON), .parents(), .children(id), .walk().
+Ground truth (``ground_truth``): ground_truth_graph(scene), restrict_graph(graph, keep_ids).
+Kinematic tree (``kinematic``, ``joints``): to_kinematic_tree(graph, entities_by_id) -> KinematicTree
+    (URDF via .to_urdf); SupportJointTable from ``config/support_joints.yaml`` decides fixed/floating.
+Metrics (``metrics``): match_nodes, graph_edit_distance (Table 5 + exact tree edit distance),
+    box_map (Table 4, exact yaw-box IoU), evaluate_graph(pred, gt).
+Evaluation helpers: observed.observed_entities (what a recording saw), evaluation (python -m
+    scene_graph.evaluation), draw.draw_graph (PNG).
+"""
+
+from .box import GravityBox
+from .builder import ContactGraphBuilder, build_contact_graph
+from .config import SceneGraphConfig, load_scene_graph_config
+from .entity import Entity, EntityError, entities_from_ground_truth
+from .graph import ROOT_ID, ContactGraph, GraphError, GraphNode, SupportEdge
+from .ground_truth import ground_truth_graph
+from .kinematic import to_kinematic_tree
+
+__all__ = [
+    "ROOT_ID",
+    "ContactGraph",
+    "ContactGraphBuilder",
+    "Entity",
+    "EntityError",
+    "GraphError",
+    "GraphNode",
+    "GravityBox",
+    "SceneGraphConfig",
+    "SupportEdge",
+    "build_contact_graph",
+    "entities_from_ground_truth",
+    "ground_truth_graph",
+    "load_scene_graph_config",
+    "to_kinematic_tree",
+]

@@ -50,12 +50,16 @@ def footprint_grid(box: GravityBox, cell_size: float, max_cells: int) -> Footpri
     return FootprintGrid(box, n[0], n[1], local, world)
 
 
-def triangles_cover(points: NDArray[np.float64], triangles: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """Which (G, 2) points lie in at least one of the (F, 3, 2) triangles (edges inclusive)."""
+def triangles_cover(points: NDArray[np.float64], triangles: NDArray[np.float64],
+                    bounds: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None) -> NDArray[np.bool_]:
+    """Which (G, 2) points lie in at least one of the (F, 3, 2) triangles (edges inclusive).
+
+    ``bounds``: precomputed per-triangle (lo, hi), so large regions are not rescanned per query.
+    """
     if len(triangles) == 0 or len(points) == 0:
         return np.zeros(len(points), dtype=bool)
     lo, hi = points.min(0), points.max(0)
-    tlo, thi = triangles.min(axis=1), triangles.max(axis=1)
+    tlo, thi = bounds if bounds is not None else (triangles.min(axis=1), triangles.max(axis=1))
     near = np.all((tlo <= hi) & (thi >= lo), axis=1)  # triangles whose bounds meet the grid's
     tri = triangles[near]
     if len(tri) == 0:

@@ -50,6 +50,14 @@ class SurfacePlane:
     region_triangles: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3, 2)))
     region_points: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
 
+    _bounds: tuple[NDArray[np.float64], NDArray[np.float64]] | None = field(default=None, repr=False)
+
+    def region_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Per-triangle x-y bounds (F, 2) lo/hi of the region, computed once (Eq. (2) runs per child)."""
+        if self._bounds is None or len(self._bounds[0]) != len(self.region_triangles):
+            self._bounds = (self.region_triangles.min(axis=1), self.region_triangles.max(axis=1))
+        return self._bounds
+
     @property
     def normal(self) -> NDArray[np.float64]:
         return self.plane.normal
@@ -87,11 +95,12 @@ def _face_data(entity: Entity) -> tuple[NDArray, NDArray, NDArray]:
     return tri, normals, 0.5 * norm
 
 
-def height_group_planes(entity: Entity, cfg: PlaneConfig, up_cos: float) -> list[Plane]:
+def height_group_planes(entity: Entity, cfg: PlaneConfig, up_cos: float,
+                        faces: tuple[NDArray, NDArray, NDArray] | None = None) -> list[Plane]:
     """Horizontal upward planes at the modes of the area-weighted height of upward faces."""
     if not entity.has_faces:
         return []
-    tri, normals, areas = _face_data(entity)
+    tri, normals, areas = faces if faces is not None else _face_data(entity)
     up = (normals[:, 2] >= up_cos) & (areas > 0.0)
     if not np.any(up):
         return []
@@ -155,13 +164,13 @@ def detect_planes(entity: Entity, cfg: PlaneConfig, a_th: float = -0.9,
                                 sample_count=cfg.ransac_samples, seed=cfg.seed)
     except (ValueError, IndexError):  # degenerate meshes (zero area) cannot be sampled
         ransac = []
-    groups = height_group_planes(entity, cfg, up_cos) if cfg.height_groups else []
+    faces = _face_data(entity) if entity.has_faces else None
+    groups = height_group_planes(entity, cfg, up_cos, faces) if cfg.height_groups else []
     kept = [SurfacePlane(p, "height_group") for p in groups]
     for p in ransac:
         dup = any(float(p.normal @ q.plane.normal) > up_cos and abs(p.d - q.plane.d) < thr for q in kept)
         if not dup:
             kept.append(SurfacePlane(p, "ransac"))
-    faces = _face_data(entity) if entity.has_faces else None
     for sp in kept:
         if sp.is_support(a_th):
             sp.region_triangles, sp.region_points = _support_region(entity, sp.plane, cfg, faces)

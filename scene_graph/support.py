@@ -134,7 +134,8 @@ class SupportInference:
                 if not np.isfinite(h) or not bottom - cfg.max_gap <= h <= bottom + cfg.above_tolerance:
                     continue
                 self.result.plane_tests += 1
-                cov = triangles_cover(grid.world, sp.region_triangles)
+                cov = triangles_cover(grid.world, sp.region_triangles,
+                                      sp.region_bounds() if len(sp.region_triangles) else None)
                 if len(sp.region_points):
                     cov |= points_cover(grid, sp.region_points)
                 if cov.any():
