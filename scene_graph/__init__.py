@@ -34,7 +34,6 @@ from .builder import ContactGraphBuilder, build_contact_graph
 from .config import SceneGraphConfig, load_scene_graph_config
 from .entity import Entity, EntityError, entities_from_ground_truth
 from .graph import ROOT_ID, ContactGraph, GraphError, GraphNode, SupportEdge
-from .ground_truth import ground_truth_graph
 from .kinematic import to_kinematic_tree
 
 __all__ = [
@@ -50,7 +49,6 @@ __all__ = [
     "SupportEdge",
     "build_contact_graph",
     "entities_from_ground_truth",
-    "ground_truth_graph",
     "load_scene_graph_config",
     "to_kinematic_tree",
 ]
