@@ -88,3 +88,18 @@ def test_kinematic_tree_urdf_parses_with_the_right_joint_types(room, tmp_path):
     moved = cup_link.mesh.copy()
     moved.apply_transform(g.nodes[5].box.bottom_pose())
     np.testing.assert_allclose(np.sort(moved.vertices, axis=0), np.sort(room[4].vertices, axis=0), atol=1e-9)
+
+
+def test_yaml_config_matches_the_dataclass_defaults(tmp_path):
+    import dataclasses
+
+    from scene_graph.config import SceneGraphConfig, load_scene_graph_config
+
+    assert dataclasses.asdict(load_scene_graph_config()) == dataclasses.asdict(SceneGraphConfig())
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("support:\n  a_tth: -0.9\n")
+    with pytest.raises(ConfigError, match="a_tth"):
+        load_scene_graph_config(bad)
+    bad.write_text("proximal:\n  broadphase: octree\n")
+    with pytest.raises(ConfigError, match="broadphase"):
+        load_scene_graph_config(bad)
