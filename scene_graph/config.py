@@ -147,6 +147,9 @@ class SceneGraphConfig:
     refine: RefineConfig = field(default_factory=RefineConfig)
     proximal: ProximalConfig = field(default_factory=ProximalConfig)
     match: MatchConfig = field(default_factory=MatchConfig)
+    #: Entities of these classes take no part in the graph (the mapper's "unknown" leftover
+    #: surface is not an object; as a node it could even become a support parent).
+    ignore_classes: list[str] = field(default_factory=lambda: ["unknown"])
     #: Class table file (empty: the repository's config/classes.yaml).
     class_table: str = ""
     #: Support-joint table file (empty: config/support_joints.yaml).

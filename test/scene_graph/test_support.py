@@ -176,3 +176,11 @@ def test_unknown_class_becomes_rigid_with_a_warning(entity, caplog):
 def test_no_floor_hangs_on_the_root(entity):
     g = build_contact_graph([entity(1, "box", [([0, 0, 0.5], [0.2, 0.2, 0.7])])])
     assert g.supports[1].parent_id == ROOT_ID and g.supports[1].kind == "fallback_root"
+
+
+def test_ignored_classes_are_left_out(entity):
+    g = build_contact_graph([entity(1, "floor", [([-2, -2, -0.05], [2, 2, 0])]),
+                             entity(2, "unknown", [([0, 0, 0], [0.5, 0.5, 0.3])]),
+                             entity(3, "cup", [([0.1, 0.1, 0.3], [0.2, 0.2, 0.4])])])
+    assert 2 not in g.nodes and "ignored" in g.skipped[2]
+    assert g.supports[3].parent_id == 1  # the unknown blob cannot carry anything
