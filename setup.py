@@ -36,6 +36,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/launch", glob("launch/*.py")),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/config/segmentation", glob("config/segmentation/*.yaml")),
     ],
     package_data={"scene_recon": ["config/*.yaml"]},
     include_package_data=True,

@@ -107,12 +107,17 @@ class KeyframeConfig:
     min_translation_m: float = 0.15
     min_rotation_deg: float = 10.0
     max_interval_s: float = 1.0
+    #: Non-keyframes also segment depth and propagate the map's labels into unknown voxels (slower);
+    #: false: they integrate geometry only.
+    label_non_keyframes: bool = False
 
 
 @dataclass
 class ExtractionConfig:
     """Entity extraction (Sec. 3.4)."""
 
+    #: Thing instances seen in fewer segmented frames are spurious detections and are not extracted.
+    min_instance_frames: int = 1
     #: Entities with fewer mesh vertices are dropped.
     min_entity_voxels: int = 50
     #: Also output the reconstructed surface no entity claims, as entity 0 of class -1 ("unknown"):

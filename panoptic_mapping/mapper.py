@@ -103,6 +103,12 @@ class PanopticMapper:
         intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
         area = 1.0 / (ds * ds)
         t = {}
+        if masks is None and not cfg.keyframes.label_non_keyframes:
+            # geometry only: labels come from keyframes (the extraction fills the fringe)
+            self.tsdf.integrate_depth(depth, intr.matrix, frame.pose)
+            self.frames_integrated += 1
+            t1 = time.perf_counter()
+            return FrameStats(False, 0, 0, 0, 0, {"integration": (t1 - t0) * 1000})
         geo, points, _normals = segment_depth(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
         t["depth_segmentation"] = time.perf_counter()
         if masks is not None:
@@ -218,6 +224,7 @@ class PanopticMapper:
             if choice is None:
                 choice = self.counts.new_instance()
             used.add(choice)
+            self.counts.instance_frames[choice] = self.counts.instance_frames.get(choice, 0) + 1
             for s in ss:
                 self.counts.add(int(label_of[s]), c, choice)  # Eq. (4)
 
@@ -301,10 +308,14 @@ class PanopticMapper:
             seg_instance[label] = p
         # group segments per entity: things by instance, stuff by class
         groups: dict[int, list[int]] = {}
+        min_frames = self.config.extraction.min_instance_frames
         for label, p in seg_instance.items():
             c = seg_class[label][0]
             meta = self.classes.get(c)
-            key = p if (meta is None or meta.is_thing) else counts.instance_for_stuff(c)
+            thing = meta is None or meta.is_thing
+            if thing and counts.instance_frames.get(p, 0) < min_frames:
+                continue  # seen in too few segmented frames: a spurious detection, not an object
+            key = p if thing else counts.instance_for_stuff(c)
             groups.setdefault(key, []).append(label)
         ents: list[MappedEntity] = []
         lut_size = counts.next_label

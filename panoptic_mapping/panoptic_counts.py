@@ -19,6 +19,7 @@ class PanopticCounts:
         self.stuff_instance: dict[int, int] = {}
         self._alias = np.zeros(1024, np.int64)  # alias[l] = parent label (0: l is canonical)
         self.last_update: dict[int, int] = {}  # canonical label -> frame index of the last change
+        self.instance_frames: dict[int, int] = {}  # instance -> number of segmented frames that saw it
 
     # ------------------------------------------------------------------ labels
     def new_label(self) -> int:
@@ -66,6 +67,7 @@ class PanopticCounts:
 
     def merge_instances(self, src: int, dst: int) -> None:
         """Every vote for instance `src` goes to `dst`."""
+        self.instance_frames[dst] = self.instance_frames.get(dst, 0) + self.instance_frames.pop(src, 0)
         for counts in self.phi.values():
             for (c, p) in [k for k in counts if k[1] == src]:
                 counts[(c, dst)] = counts.get((c, dst), 0) + counts.pop((c, p))
@@ -103,6 +105,7 @@ class PanopticCounts:
             "counters": np.array([self.next_label, self.next_instance], np.int64),
             "stuff": np.array(sorted(self.stuff_instance.items()), np.int64).reshape(-1, 2),
             "last_update": np.array(sorted(self.last_update.items()), np.int64).reshape(-1, 2),
+            "instance_frames": np.array(sorted(self.instance_frames.items()), np.int64).reshape(-1, 2),
         }
 
     @classmethod
@@ -115,4 +118,5 @@ class PanopticCounts:
             self.phi[int(l)][(int(c), int(p))] = int(n)
         self.stuff_instance = {int(c): int(p) for c, p in a["stuff"]}
         self.last_update = {int(k): int(v) for k, v in a["last_update"]}
+        self.instance_frames = {int(k): int(v) for k, v in a.get("instance_frames", np.zeros((0, 2)))}
         return self

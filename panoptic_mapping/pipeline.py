@@ -150,6 +150,9 @@ def render_map_picture(ents: list[MappedEntity], poses: list[np.ndarray], path: 
     from scene_recon.synthetic.items import RenderItem
     from scene_recon.synthetic.overview import render_overview
 
-    items = [RenderItem(mesh=e.mesh(), label=int(e.id), name=f"{e.class_name}") for e in ents if len(e.faces)]
+    # the unclaimed surface (entity 0, "unknown") gets a label of its own: labels must be > 0
+    spare = max((int(e.id) for e in ents), default=0) + 1
+    items = [RenderItem(mesh=e.mesh(), label=int(e.id) if e.id > 0 else spare, name=f"{e.class_name}")
+             for e in ents if len(e.faces)]
     if items:
         render_overview(items, np.array(poses) if poses else None, path)
