@@ -19,8 +19,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.common import write_result  # noqa: E402
-from scene_recon.synthetic.generate import GenerateConfig, generate_recording  # noqa: E402
+from benchmarks.common import write_result
+from scene_recon.synthetic.generate import GenerateConfig, generate_recording
 
 
 def raycast_baseline(gt_dir: Path, bag: Path, frames: int) -> float:
@@ -70,7 +70,8 @@ def main() -> int:
     }
     print(f"generate {args.frames} frames 640x480, {args.objects} objects: {total:.1f} s "
           f"({result['per_frame_ms']} ms/frame; goal < 60 s) | stages {summary['timings_s']}")
-    print(f"baseline (Open3D ray casting only, same poses): {base:.1f} s -> ratio {result['ratio_total_over_raycast']}x")
+    ratio = result["ratio_total_over_raycast"]
+    print(f"baseline (Open3D ray casting only, same poses): {base:.1f} s -> ratio {ratio}x")
     print(f"wrote {write_result('generate', result)}")
     return 0
 

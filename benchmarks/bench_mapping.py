@@ -4,7 +4,8 @@ For every suite scene, the same frames go through:
   full/default        the paper's method (+ our extensions), oracle segmentation at `default` noise
   baseline/default    Voxblox++-style fusion, same frames, same noise, same seed
   full/clean          the method with perfect 2D segmentation (what the method itself loses)
-  full/default/all    keyframe gating off: every frame segmented (the gating's cost in PQ)
+  full/default/all-frames  keyframe gating off: every frame segmented (the gating's cost in PQ)
+  full/default/label-non-keyframes  non-keyframes also propagate labels (slower; default: geometry only)
 and, on the same frames, Open3D's depth-only VoxelBlockGrid integration (the speed baseline).
 Segmentation time is excluded from the mapper's frames/s (it is reported separately).
 
@@ -24,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.common import RESULTS_DIR, write_result  # noqa: E402
+from benchmarks.common import RESULTS_DIR, write_result
 
 CONFIGS = {
     "full/default": {"mode": "full", "noise": "default", "keyframes": True},
@@ -111,7 +112,8 @@ def main() -> int:
         for cname in args.configs:
             r = run_one(bag, gt, CONFIGS[cname], args.frames, tmp / name / cname.replace("/", "_"))
             results[name][cname] = r
-            print(f"{name:14s} {cname:24s} PQ {r['pq']:5.1f} (things {r['pq_things']:5.1f}, stuff {r['pq_stuff']:5.1f}) "
+            print(f"{name:14s} {cname:24s} PQ {r['pq']:5.1f} "
+                  f"(things {r['pq_things']:5.1f}, stuff {r['pq_stuff']:5.1f}) "
                   f"SQ {r['sq']:5.1f} RQ {r['rq']:5.1f} mAP {r['map']:5.1f} | {r['mapper_fps']:5.1f} frames/s, "
                   f"{r['segmentation_calls']} seg calls", flush=True)
         full = results[name].get("full/default")

@@ -144,6 +144,14 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
                          np.where(mid > 0, masks.score[mid], 0.0), num_split, num_out)
 
 
+def _find(parent: list[int], i: int) -> int:
+    """Union-find root with path halving."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
 def _cluster_instances(geo: np.ndarray, mask_of: np.ndarray, masks: PanopticMasks, points: np.ndarray,
                        size_g: np.ndarray, cfg: FusionConfig) -> int:
     """Keep only the largest 3D cluster of each thing instance's segments (in place on `mask_of`)."""
@@ -172,19 +180,12 @@ def _cluster_instances(geo: np.ndarray, mask_of: np.ndarray, masks: PanopticMask
             trees.append(cKDTree(cloud))
         n = len(segs)
         parent = list(range(n))
-
-        def find(i: int) -> int:
-            while parent[i] != i:
-                parent[i] = parent[parent[i]]
-                i = parent[i]
-            return i
-
         for i in range(n):
             for j in range(i + 1, n):
                 d, _ = trees[j].query(clouds[i], k=1, distance_upper_bound=cfg.cluster_distance_m)
                 if np.isfinite(d).any():
-                    parent[find(i)] = find(j)
-        roots = np.array([find(i) for i in range(n)])
+                    parent[_find(parent, i)] = _find(parent, j)
+        roots = np.array([_find(parent, i) for i in range(n)])
         sizes = {r: int(size_g[np.array(segs)[roots == r]].sum()) for r in set(roots.tolist())}
         keep_root = max(sizes, key=sizes.get)
         for i, g in enumerate(segs):

@@ -133,8 +133,8 @@ class PanopticMapper:
             has &= (map_labels == 0) | (map_labels == pix_labels)
         lut = self.counts.canonical_lut()
         self.tsdf.integrate_labels(world[has], pix_labels[has], lut)
-        for l in np.unique(pix_labels[has]).tolist():
-            self.counts.last_update[int(l)] = self.frames_integrated
+        for label in np.unique(pix_labels[has]).tolist():
+            self.counts.last_update[int(label)] = self.frames_integrated
         self.tsdf.integrate_depth(depth, intr.matrix, frame.pose)
         t["integration"] = time.perf_counter()
         self.frames_integrated += 1
@@ -299,10 +299,8 @@ class PanopticMapper:
             c, votes_c, _ = counts.segment_class(label)  # Eq. (6), first line
             if c == BACKGROUND or votes_c == 0:
                 continue
-            if self.full:
-                votes = counts.instance_votes(label, c)  # Eq. (6), second line: argmax_p Phi(l, c_l, p)
-            else:
-                votes = counts.instance_votes(label, None)  # baseline: instance tracked apart from class
+            # Eq. (6), second line: argmax_p Phi(l, c_l, p); the baseline tracks instances apart from class
+            votes = counts.instance_votes(label, c if self.full else None)
             p = max(votes, key=lambda k: (votes[k], -k))
             seg_class[label] = (c, votes_c)
             seg_instance[label] = p
@@ -357,7 +355,7 @@ class PanopticMapper:
         same = (ent_f[:, 0] == ent_f[:, 1]) & (ent_f[:, 1] == ent_f[:, 2]) & (ent_f[:, 0] > 0)
         if unknown is not None and np.any(~same):
             used, inv = np.unique(f[~same].ravel(), return_inverse=True)
-            unknown.vertices, unknown.faces, unknown.num_voxels = v[used], inv.reshape(-1, 3), int(len(used))
+            unknown.vertices, unknown.faces, unknown.num_voxels = v[used], inv.reshape(-1, 3), len(used)
         f, eid = f[same], ent_f[same, 0]
         order = np.argsort(eid, kind="stable")
         f, eid = f[order], eid[order]
@@ -370,7 +368,7 @@ class PanopticMapper:
             used, inv = np.unique(faces.ravel(), return_inverse=True)
             e.vertices = v[used]
             e.faces = inv.reshape(-1, 3)
-            e.num_voxels = int(len(used))
+            e.num_voxels = len(used)
 
     def _fill_unclaimed(self, v: np.ndarray, ent_v: np.ndarray) -> np.ndarray:
         """Unclaimed vertices within `fill_radius_m` of a claimed one join its entity.

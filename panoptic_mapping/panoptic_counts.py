@@ -43,7 +43,9 @@ class PanopticCounts:
         """Dense array mapping every label id to its canonical label (0 stays 0)."""
         n = max(upto or 0, self.next_label)
         lut = np.arange(n, dtype=np.int64)
-        alias = self._alias[:n] if len(self._alias) >= n else np.r_[self._alias, np.zeros(n - len(self._alias), np.int64)]
+        alias = self._alias[:n]
+        if len(alias) < n:
+            alias = np.r_[alias, np.zeros(n - len(alias), np.int64)]
         for _ in range(64):  # pointer jumping; merge chains are short
             parent = np.where(alias[lut] > 0, alias[lut], lut)
             if np.array_equal(parent, lut):
@@ -98,7 +100,7 @@ class PanopticCounts:
 
     # ------------------------------------------------------------------ persistence
     def to_arrays(self) -> dict[str, np.ndarray]:
-        rows = [(l, c, p, n) for l, counts in self.phi.items() for (c, p), n in counts.items()]
+        rows = [(label, c, p, n) for label, counts in self.phi.items() for (c, p), n in counts.items()]
         return {
             "phi": np.array(rows, np.int64).reshape(-1, 4),
             "alias": self._alias[: self.next_label].copy(),
@@ -114,8 +116,8 @@ class PanopticCounts:
         self.next_label, self.next_instance = (int(v) for v in a["counters"])
         self._alias = np.zeros(max(1024, 2 * self.next_label), np.int64)
         self._alias[: len(a["alias"])] = a["alias"]
-        for l, c, p, n in a["phi"]:
-            self.phi[int(l)][(int(c), int(p))] = int(n)
+        for label, c, p, n in a["phi"]:
+            self.phi[int(label)][(int(c), int(p))] = int(n)
         self.stuff_instance = {int(c): int(p) for c, p in a["stuff"]}
         self.last_update = {int(k): int(v) for k, v in a["last_update"]}
         self.instance_frames = {int(k): int(v) for k, v in a.get("instance_frames", np.zeros((0, 2)))}

@@ -81,11 +81,7 @@ def map_recording(
     run = MappingRun()
     t_start = time.perf_counter()
     with open_dataset(source, data_config) as loader:
-        total = None
-        try:
-            total = len(loader)
-        except TypeError:
-            pass
+        total = len(loader) if hasattr(loader, "__len__") else None
         frames = iter(loader)
         bar = tqdm(total=total, desc="mapping", unit="frame", disable=not progress)
         while True:

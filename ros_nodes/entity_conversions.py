@@ -6,13 +6,13 @@ import colorsys
 
 import numpy as np
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
+from scene_recon_interfaces.msg import OrientedBox, PanopticEntity
 from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from cad_replacement.cad.features import gravity_aligned_box
 from panoptic_mapping.entities import MappedEntity
-from scene_recon_interfaces.msg import OrientedBox, PanopticEntity
 
 CATEGORY = {"layout": PanopticEntity.CATEGORY_LAYOUT, "rigid": PanopticEntity.CATEGORY_RIGID,
             "articulated": PanopticEntity.CATEGORY_ARTICULATED}

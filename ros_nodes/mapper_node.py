@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 import rclpy
 from rclpy.node import Node
+from scene_recon_interfaces.msg import PanopticEntityArray
+from scene_recon_interfaces.srv import ExtractEntities, LoadMap, ResetMap, SaveMap, SegmentImage
 from sensor_msgs.msg import CameraInfo, Image
 from visualization_msgs.msg import MarkerArray
 
@@ -33,8 +35,6 @@ from ros_nodes.qos import SENSOR_RELIABLE
 from ros_nodes.tf_listener import TFListener
 from scene_recon.config import CONFIG_DIR, ConfigError, load_config
 from scene_recon.ros_env import ensure_ros_environment
-from scene_recon_interfaces.msg import PanopticEntityArray
-from scene_recon_interfaces.srv import ExtractEntities, LoadMap, ResetMap, SaveMap, SegmentImage
 
 
 @dataclass

@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import shapely
 import trimesh
-from shapely.geometry import Polygon, box as shapely_box
+from shapely.geometry import Polygon
+from shapely.geometry import box as shapely_box
 from shapely.prepared import prep
 
 from cad_replacement.cad.model import CadModel
@@ -134,8 +135,8 @@ class RoomLayout:
             m.apply_translation((lo + hi) / 2)
             return m
 
-        items = [PlacedObject("floor", "floor", np.eye(4), layout_mesh=slab([-hx - t, -hy - t, -ft], [hx + t, hy + t, 0]),
-                              parent="scene")]
+        floor = slab([-hx - t, -hy - t, -ft], [hx + t, hy + t, 0])
+        items = [PlacedObject("floor", "floor", np.eye(4), layout_mesh=floor, parent="scene")]
         walls = [
             ("wall_west", [-hx - t, -hy - t, 0], [-hx, hy + t, height]),
             ("wall_east", [hx, -hy - t, 0], [hx + t, hy + t, height]),

@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from cad_replacement.cad.procedural import build_model
 from cad_replacement.cad.classes import load_class_table
+from cad_replacement.cad.procedural import build_model
 from cad_replacement.kinematic_tree import KinematicTree, TreeJoint, TreeLink
 from scene_recon.synthetic.items import Appearance, RenderItem
-from scene_recon.synthetic.layout import LayoutConfig, PlacedObject, RoomLayout
+from scene_recon.synthetic.layout import LayoutConfig, RoomLayout
 
 SCENE_FORMAT_VERSION = 1
 ROOT = "scene"

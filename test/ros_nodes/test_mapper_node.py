@@ -25,9 +25,9 @@ def _small_recording(path):
 
 def test_mapper_node_maps_a_bag_with_the_segmentation_service(tmp_path):
     import rclpy
+    from scene_recon_interfaces.srv import ExtractEntities, SaveMap, SegmentImage
 
     from ros_nodes.entity_conversions import msg_to_entity
-    from scene_recon_interfaces.srv import ExtractEntities, SaveMap, SegmentImage
 
     summary = _small_recording(tmp_path / "rec")
     gt = GroundTruthScene.load(summary["ground_truth"])
@@ -54,7 +54,8 @@ def test_mapper_node_maps_a_bag_with_the_segmentation_service(tmp_path):
         assert extract.wait_for_service(timeout_sec=60) and seg_ready.wait_for_service(timeout_sec=60)
         player = subprocess.run(
             [py, "-m", "ros_nodes.rgbd_player", "--ros-args", "-p", f"source:={summary['bag']}", "-p", "rate:=1.0",
-             "-p", "wait_for_subscribers:=1", "-p", "wait_for_label_subscribers:=1", "-p", "labels_topic_in:=/ground_truth/panoptic_labels"],
+             "-p", "wait_for_subscribers:=1", "-p", "wait_for_label_subscribers:=1",
+             "-p", "labels_topic_in:=/ground_truth/panoptic_labels"],
             env=env, capture_output=True, text=True, timeout=120)
         assert player.returncode == 0, player.stdout + player.stderr
         time.sleep(3.0)  # let the mapper drain its queue
