@@ -2,8 +2,8 @@
 
 A mapped scene folder (written by `scene-recon map`, read by `eval-map` and `graph`):
 
-    entities.json   {"format_version": 1, "map_frame": "map", "entities": [
-                        {"id", "class_id", "class_name", "instance_id", "is_thing", "category",
+    entities.json   {"format_version": 1, "map_frame": "map", "name": "<scene>", "entities": [
+                        {"id", "name", "class_id", "class_name", "instance_id", "is_thing", "category",
                          "confidence", "num_voxels", "revision", "mesh_file": "meshes/<id>.ply"}, ...]}
     meshes/<id>.ply the entity's triangle mesh in the map frame
 """
@@ -36,6 +36,12 @@ class MappedEntity:
     revision: int = 0  # increases whenever the entity's voxels change
     vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     faces: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
+    #: Display / link name; empty: "<class_name>_<id>".
+    name: str = ""
+
+    @property
+    def label(self) -> str:
+        return self.name or f"{self.class_name}_{int(self.id)}"
 
     def mesh(self) -> trimesh.Trimesh:
         return trimesh.Trimesh(self.vertices, self.faces, process=False)
@@ -45,16 +51,16 @@ class MappedEntity:
             "id": int(self.id), "class_id": int(self.class_id), "class_name": self.class_name,
             "instance_id": int(self.instance_id), "is_thing": bool(self.is_thing), "category": self.category,
             "confidence": float(self.confidence), "num_voxels": int(self.num_voxels),
-            "revision": int(self.revision), "mesh_file": f"meshes/{int(self.id)}.ply",
+            "revision": int(self.revision), "mesh_file": f"meshes/{int(self.id)}.ply", "name": self.label,
         }
 
 
-def save_entities(entities: list[MappedEntity], folder: str | Path, map_frame: str = "map") -> Path:
+def save_entities(entities: list[MappedEntity], folder: str | Path, map_frame: str = "map", name: str = "") -> Path:
     folder = Path(folder)
     (folder / "meshes").mkdir(parents=True, exist_ok=True)
     for e in entities:
         e.mesh().export(folder / "meshes" / f"{int(e.id)}.ply")
-    data = {"format_version": ENTITIES_FORMAT_VERSION, "map_frame": map_frame,
+    data = {"format_version": ENTITIES_FORMAT_VERSION, "map_frame": map_frame, "name": name or folder.name,
             "entities": [e.to_dict() for e in entities]}
     out = folder / "entities.json"
     out.write_text(json.dumps(data, indent=1), encoding="utf-8")
@@ -79,5 +85,5 @@ def load_entities(folder: str | Path) -> list[MappedEntity]:
             v, fc = np.zeros((0, 3)), np.zeros((0, 3), np.int64)
         out.append(MappedEntity(d["id"], d["class_id"], d["class_name"], d["instance_id"], d["is_thing"],
                                 d.get("category", "rigid"), d.get("confidence", 1.0), d.get("num_voxels", 0),
-                                d.get("revision", 0), v, fc))
+                                d.get("revision", 0), v, fc, d.get("name", "")))
     return out

@@ -52,7 +52,7 @@ def test_mapped_scene_folder_round_trip(scene, tmp_path):
     assert g1.parents() == g2.parents()
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "entities.json").write_text(json.dumps({"format": "x"}))
-    with pytest.raises(SourceError, match="not a"):
+    with pytest.raises(SourceError, match="cannot read entities"):
         read_entities(tmp_path / "bad")
     with pytest.raises(SourceError, match="neither"):
         load_source(tmp_path)
