@@ -75,12 +75,12 @@ class ContactGraphBuilder:
         """Add or refresh entities; only those with a new (id, revision) are recomputed. Returns them."""
         rebuilt = []
         for e in entities:
-            if e.id == ROOT_ID:
-                raise EntityError(f"entity {e.name!r}: id {ROOT_ID} is reserved for the scene root")
-            if e.class_name in self.cfg.ignore_classes:
+            if e.class_name in self.cfg.ignore_classes:  # e.g. the map's unclaimed surface (entity 0)
                 self._cache.pop(e.id, None)
                 self.skipped[e.id] = f"class {e.class_name!r} is ignored"
                 continue
+            if e.id == ROOT_ID:
+                raise EntityError(f"entity {e.name!r}: id {ROOT_ID} is reserved for the scene root")
             cached = self._cache.get(e.id)
             if cached is not None and cached.revision == e.revision and e.id not in self.skipped:
                 continue
