@@ -107,9 +107,9 @@ class KeyframeConfig:
     min_translation_m: float = 0.15
     min_rotation_deg: float = 10.0
     max_interval_s: float = 1.0
-    #: Non-keyframes also segment depth and propagate the map's labels into unknown voxels (slower);
-    #: false: they integrate geometry only.
-    label_non_keyframes: bool = False
+    #: Every n-th non-keyframe also segments depth and propagates the map's labels into unknown
+    #: voxels (costs ~4x a geometry-only frame); the others integrate geometry only. 1 = all, 0 = none.
+    label_every_n_frames: int = 3
 
 
 @dataclass

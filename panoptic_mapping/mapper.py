@@ -103,7 +103,8 @@ class PanopticMapper:
         intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
         area = 1.0 / (ds * ds)
         t = {}
-        if masks is None and not cfg.keyframes.label_non_keyframes:
+        n_label = cfg.keyframes.label_every_n_frames
+        if masks is None and (n_label <= 0 or self.frames_integrated % n_label):
             # geometry only: labels come from keyframes (the extraction fills the fringe)
             self.tsdf.integrate_depth(depth, intr.matrix, frame.pose)
             self.frames_integrated += 1

@@ -6,44 +6,47 @@ import argparse
 import shutil
 from pathlib import Path
 
-from .common import print_json
-
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
         help="run the pipeline end to end on a generated default scene",
-        description="Generate the default synthetic scene (seed 0, 20 objects, 300 frames), read it back "
-        "through the data layer and report what it holds. Later pipeline stages run here as they land.",
+        description="Generate the default synthetic scene (seed 0, 20 objects, 300 frames), read it back through "
+        "the data layer, map it (oracle segmentation at `default` noise), build its contact graph, and score the "
+        "map and the graph against the ground truth. Every step is the subcommand of the same name.",
     )
     p.add_argument("--out", default="out/demo", help="output folder (replaced if it exists; default out/demo)")
     p.add_argument("--objects", type=int, default=20)
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--json", action="store_true")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from panoptic_mapping.dataio.inspect import inspect_dataset
-    from scene_recon.synthetic.generate import GenerateConfig, generate_recording
-
-    from .generate_cmd import format_summary
-    from .inspect_cmd import format_summary as format_inspect
+    from scene_recon.cli import main
 
     out = Path(args.out)
     if out.exists():
         shutil.rmtree(out)
     out.mkdir(parents=True)
-    summary = generate_recording(out / "scene", GenerateConfig(objects=args.objects, frames=args.frames,
-                                                               seed=args.seed), progress=not args.json)
-    info = inspect_dataset(summary["bag"])
-    if args.json:
-        print_json({"generate": summary, "inspect": info})
-        return 0
-    print("== 1. synthetic scene")
-    print(format_summary(summary))
-    print("\n== 2. the recording, read back through the data layer")
-    print(format_inspect(info))
-    print(f"\nlook at: {Path(summary['ground_truth']) / 'overview.png'}")
+    bag, gt = out / "scene", out / "scene_groundtruth"
+    steps = [
+        ("1. generate a synthetic scene", ["generate", "--out", str(bag), "--seed", str(args.seed),
+                                           "--objects", str(args.objects), "--frames", str(args.frames)]),
+        ("2. read the recording back through the data layer", ["inspect", str(bag)]),
+        ("3. panoptic mapping (oracle segmentation, default noise)",
+         ["map", str(bag), "--out", str(out / "map"), "--segmenter", "oracle", "--noise", "default"]),
+        ("4. map quality against the ground truth", ["eval-map", str(out / "map"), str(gt)]),
+        ("5. contact graph of the mapped entities", ["graph", str(out / "map"), "--out", str(out / "graph")]),
+        ("6. contact graph against the ground truth",
+         ["eval-graph", str(out / "graph" / "contact_graph.json"), str(gt)]),
+    ]
+    for title, argv in steps:
+        print(f"\n== {title}\n$ scene-recon {' '.join(argv)}", flush=True)
+        code = main(argv)
+        if code:
+            print(f"demo stopped: step '{title}' failed with exit code {code}")
+            return code
+    print(f"\nlook at: {gt / 'overview.png'}, {out / 'map' / 'panoptic_map.png'}, "
+          f"{out / 'graph' / 'contact_graph.png'}")
     return 0
