@@ -56,6 +56,10 @@ class FusionConfig:
     cluster_distance_m: float = 0.05
     #: Points subsampled per segment for the pairwise distance test (speed; exact enough).
     cluster_max_points: int = 400
+    #: Our extension (full mode): depth-edge pixels inside a mask join the mask's largest segment,
+    #: unless farther than the margin (m) outside that segment's depth range.
+    absorb_edge_pixels: bool = True
+    absorb_depth_margin_m: float = 0.15
     #: Segments with fewer points (at full 640x480 resolution) are not integrated with a label
     #: (the paper used 800; 300 keeps cups and bottles a few metres away).
     min_segment_points: int = 300

@@ -131,6 +131,8 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
     num_out = 0
     if full and cfg.cluster:
         num_out = _cluster_instances(geo, mask_of, masks, points, size_g, cfg)
+    if full and cfg.absorb_edge_pixels:
+        geo, size_g = _absorb_edge_pixels(geo, pan, mask_of, points, n_g, cfg)
     present = size_g > 0
     present[0] = False
     new_id = np.zeros(n_g, np.int64)
@@ -142,6 +144,50 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
     cls[0] = BACKGROUND
     return FrameSegments(image, mid.astype(np.int32), cls, np.where(mid > 0, masks.is_thing[mid], False),
                          np.where(mid > 0, masks.score[mid], 0.0), num_split, num_out)
+
+
+def _absorb_edge_pixels(geo: np.ndarray, pan: np.ndarray, mask_of: np.ndarray, points: np.ndarray, n_g: int,
+                        cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Depth-edge pixels inside a mask join the mask's largest segment (thin legs, silhouettes).
+
+    The convexity segmentation leaves a band of edge pixels around every object and swallows thin
+    parts whole; the mask says whom they belong to. Pixels farther than `absorb_depth_margin_m`
+    in depth from the segment's range are left out (a mask bleeding onto far background).
+    """
+    n_m = int(pan.max()) + 1
+    if n_m <= 1:
+        return geo, np.bincount(geo.ravel(), minlength=n_g)
+    ov = _overlap(geo, pan, n_g, n_m)
+    ov[:, 0] = 0
+    labelled = np.zeros(n_g, bool)
+    labelled[mask_of > 0] = True
+    ov[~labelled, :] = 0
+    ov[0, :] = 0
+    # the host of mask m: its largest segment that was labelled with m
+    host_ok = np.zeros_like(ov, bool)
+    g_idx = np.flatnonzero(mask_of > 0)
+    host_ok[g_idx, mask_of[g_idx]] = True
+    ov = np.where(host_ok, ov, 0)
+    host = np.argmax(ov, axis=0)
+    host[ov.max(axis=0) == 0] = 0
+    z = points[..., 2]
+    edge = (geo == 0) & (z > 0) & (host[pan] > 0)
+    if not np.any(edge):
+        return geo, np.bincount(geo.ravel(), minlength=n_g)
+    flat_geo, flat_z = geo.ravel(), z.ravel()
+    inside = flat_geo > 0
+    zmin = np.full(n_g, np.inf)
+    zmax = np.full(n_g, -np.inf)
+    np.minimum.at(zmin, flat_geo[inside], flat_z[inside])
+    np.maximum.at(zmax, flat_geo[inside], flat_z[inside])
+    cand = host[pan[edge]]
+    ze = z[edge]
+    margin = cfg.absorb_depth_margin_m
+    ok = (ze >= zmin[cand] - margin) & (ze <= zmax[cand] + margin)
+    geo = geo.copy()
+    ys, xs = np.nonzero(edge)
+    geo[ys[ok], xs[ok]] = cand[ok]
+    return geo, np.bincount(geo.ravel(), minlength=n_g)
 
 
 def _find(parent: list[int], i: int) -> int:
