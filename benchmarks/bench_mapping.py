@@ -121,9 +121,12 @@ def main() -> int:
                   f"{r['segmentation_calls']} seg calls", flush=True)
         full = results[name].get("full/default")
         if full:
-            ds = 2
+            from panoptic_mapping.config import MapperConfig
+            from scene_recon.config import CONFIG_DIR, load_config
+
+            ds = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml").downsample
             o3d_proc = open3d_integration_s(bag, args.frames, ds, 0.02)
-            o3d_full = open3d_integration_s(bag, args.frames, 1, 0.02)
+            o3d_full = o3d_proc if ds == 1 else open3d_integration_s(bag, args.frames, 1, 0.02)
             results[name]["open3d_depth_only"] = {
                 "processing_resolution_fps": round(full["frames"] / o3d_proc, 2),
                 "full_resolution_fps": round(full["frames"] / o3d_full, 2),

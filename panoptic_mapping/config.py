@@ -129,7 +129,7 @@ class ExtractionConfig:
     include_unknown: bool = True
     #: Reconstructed vertices no entity claims join the nearest claimed vertex's entity within this
     #: radius (m): the unvoted fringe along depth edges. 0 disables.
-    fill_radius_m: float = 0.04
+    fill_radius_m: float = 0.08
     #: Ignore classes with this id (the "unknown/background" class).
     background_class_id: int = -1
 
@@ -139,8 +139,9 @@ class MapperConfig:
     #: "full" = the paper's method; "baseline" = Voxblox++-style fusion (greedy labels, separate
     #: semantic and instance tracking, no split, no clustering) for the ablation.
     mode: str = "full"
-    #: Process images downscaled by this integer factor (2: 640x480 -> 320x240).
-    downsample: int = 2
+    #: Process images downscaled by this integer factor (2: 640x480 -> 320x240; ~2x faster, small
+    #: objects suffer: clean-oracle PQ 88.4 vs 92.0 on bench-kitchen).
+    downsample: int = 1
     depth_segmentation: DepthSegmentationConfig = field(default_factory=DepthSegmentationConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     association: AssociationConfig = field(default_factory=AssociationConfig)
