@@ -65,6 +65,7 @@ class PanopticMapper:
         self.merge_votes: dict[tuple[int, int], int] = {}
         self.frames_integrated = 0
         self.keyframes = 0
+        self._entity_cache: tuple | None = None
         self._last_key_pose: np.ndarray | None = None
         self._last_key_time: int | None = None
 
@@ -291,7 +292,19 @@ class PanopticMapper:
 
     # ------------------------------------------------------------------ extraction
     def entities(self, with_meshes: bool = True) -> list[MappedEntity]:
-        """Panoptic entities by Eq. (6), each with the mesh of its segments."""
+        """Panoptic entities by Eq. (6), each with the mesh of its segments.
+
+        Nothing is recomputed while no frame was integrated since the last call (a node publishing
+        at a fixed rate over a paused stream costs nothing).
+        """
+        key = (self.frames_integrated, with_meshes, self.counts.next_label, self.counts.next_instance)
+        if self._entity_cache is not None and self._entity_cache[0] == key:
+            return list(self._entity_cache[1])
+        ents = self._extract(with_meshes)
+        self._entity_cache = (key, ents)
+        return list(ents)
+
+    def _extract(self, with_meshes: bool) -> list[MappedEntity]:
         self.regularize()
         counts = self.counts
         seg_class: dict[int, tuple[int, int]] = {}

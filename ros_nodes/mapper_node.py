@@ -89,6 +89,8 @@ class MapperNode(Node):
         self.counters = collections.Counter()
         self._changed = False
         self._published_revision: dict[int, int] = {}
+        # entity messages by (id, revision, with mesh): unchanged entities are not converted again
+        self._msg_cache: dict[tuple[int, int, bool], object] = {}
         self.create_timer(0.01, self._process)
         self.create_timer(self.publish_period_s, self._publish)
         self.create_timer(10.0, self._report)
@@ -214,7 +216,12 @@ class MapperNode(Node):
         msg = PanopticEntityArray()
         msg.header.frame_id = self.map_frame
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.entities = [entity_to_msg(e, include_meshes) for e in ents]
+        cache = {}
+        for e in ents:
+            key = (int(e.id), int(e.revision), include_meshes)
+            cache[key] = self._msg_cache.get(key) or entity_to_msg(e, include_meshes)
+        self._msg_cache = cache
+        msg.entities = list(cache.values())
         ids = {e.id for e in ents}
         msg.removed_ids = sorted(i for i in self._published_revision if i not in ids)
         self._published_revision = {e.id: e.revision for e in ents}
