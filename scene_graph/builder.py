@@ -1,9 +1,14 @@
 """Contact-graph construction (paper Sec. 2.2): initialise nodes, infer supports, refine, relate.
 
 ``build_contact_graph(entities)`` is the one-shot entry point. ``ContactGraphBuilder`` keeps the
-per-entity work (box, planes) cached by (entity id, revision), so a stream of mapper updates
-recomputes only the entities that changed; the relations are re-derived over all nodes every
-time (they are cheap next to plane extraction, and any change can move any support).
+per-entity work (layout split, box, planes) cached by (entity id, revision), so a stream of mapper
+updates recomputes only the entities that changed; the relations are re-derived over all nodes
+every time (they are cheap next to plane extraction, and any change can move any support).
+
+A mapped layout entity may become several nodes (``layout.py``: the map's single "wall" entity
+-> one node per wall); those nodes get ids no entity uses (numbered from
+max(layout.part_id_base, largest entity id + 1), in source-id order) and
+``graph.stats["layout_parts"]`` lists them per source entity id.
 """
 
 from __future__ import annotations
@@ -11,18 +16,20 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .blas import single_blas_thread
 from .broadphase import candidate_pairs
-from .classify import LAYOUT
+from .classify import LAYOUT, classify
 from .config import SceneGraphConfig, load_scene_graph_config
 from .entity import Entity, EntityError
 from .features import NodeFeatures, compute_features
+from .fragments import drop_fragments
 from .graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
 from .joints import SupportJointTable, load_support_joints
+from .layout import split_layout
 from .proximal import proximal_relations
 from .refine import refine_box
 from .support import SupportInference
@@ -36,7 +43,9 @@ FOOTPRINT_EPS = 1e-6
 @dataclass
 class _Cached:
     revision: int
-    features: NodeFeatures
+    #: The entity's nodes: one, or the parts of a split layout entity.
+    nodes: list[NodeFeatures]
+    split: bool = False
 
 
 def support_neighbours(features: list[NodeFeatures], method: str) -> tuple[dict[int, set[int]], int]:
@@ -66,10 +75,16 @@ class ContactGraphBuilder:
 
     @property
     def ids(self) -> list[int]:
+        """Ids of the entities held (source ids: a split layout entity is listed once)."""
         return sorted(self._cache)
 
     def features(self, entity_id: int) -> NodeFeatures:
-        return self._cache[entity_id].features
+        """The (first) node of an entity; its ``entity.revision`` is the entity's revision."""
+        return self._cache[entity_id].nodes[0]
+
+    def node_entities(self) -> dict[int, Entity]:
+        """Node id -> the entity (or layout part) behind it, as of the last ``build``."""
+        return {f.id: f.entity for c in self._cache.values() for f in c.nodes}
 
     def update(self, entities: Iterable[Entity]) -> list[int]:
         """Add or refresh entities; only those with a new (id, revision) are recomputed. Returns them."""
@@ -84,16 +99,20 @@ class ContactGraphBuilder:
             cached = self._cache.get(e.id)
             if cached is not None and cached.revision == e.revision and e.id not in self.skipped:
                 continue
+            sup = self.cfg.support
             try:
                 with single_blas_thread():
-                    feats = compute_features(e, self.cfg)
+                    parts = split_layout(e, self.cfg.layout, sup.wall_classes, sup.floor_classes + sup.ceiling_classes)
+                    if classify(e.class_name, e.category, self.cfg.class_table).category != LAYOUT:
+                        parts = [drop_fragments(e, self.cfg.fragments)]
+                    feats = [compute_features(p, self.cfg) for p in parts]
             except EntityError as exc:
                 log.warning("skipping entity %s: %s", e.id, exc)
                 self._cache.pop(e.id, None)
                 self.skipped[e.id] = str(exc)
                 continue
             self.skipped.pop(e.id, None)
-            self._cache[e.id] = _Cached(e.revision, feats)
+            self._cache[e.id] = _Cached(e.revision, feats, len(feats) > 1)
             rebuilt.append(e.id)
         return rebuilt
 
@@ -106,7 +125,7 @@ class ContactGraphBuilder:
         """Relations over the cached nodes: supports (Eqs. (1)-(3)), refinement, proximal pairs."""
         cfg = self.cfg
         t0 = time.perf_counter()
-        feats = [self._cache[i].features for i in self.ids]
+        feats, layout_parts = self._nodes()
         names = _unique_names(feats)
         nodes_by_id = {f.id: f for f in feats}
         neighbours, support_pairs = support_neighbours(feats, cfg.proximal.broadphase)
@@ -135,12 +154,33 @@ class ContactGraphBuilder:
         graph.skipped = dict(self.skipped)
         t2 = time.perf_counter()
         graph.stats = {
+            "layout_parts": layout_parts,
             "nodes": len(feats), "support_candidate_pairs": support_pairs, "support_plane_tests": support.plane_tests,
             "proximal_broadphase_pairs": prox.broadphase_pairs, "proximal_exact_tests": prox.exact_tests,
             "support_s": t1 - t0, "relations_s": t2 - t1,
         }
         graph.validate()
         return graph
+
+
+    def _nodes(self) -> tuple[list[NodeFeatures], dict[int, list[int]]]:
+        """Every node; split layout parts renumbered to ids no entity uses (source id -> part ids)."""
+        next_id = max(self.cfg.layout.part_id_base, max(self._cache, default=0) + 1)
+        feats: list[NodeFeatures] = []
+        parts: dict[int, list[int]] = {}
+        for sid in self.ids:
+            cached = self._cache[sid]
+            if not cached.split:
+                feats.extend(cached.nodes)
+                continue
+            for k, f in enumerate(cached.nodes):
+                if f.entity.id != next_id:
+                    f = replace(f, entity=replace(f.entity, id=next_id))
+                    cached.nodes[k] = f
+                feats.append(f)
+                parts.setdefault(sid, []).append(next_id)
+                next_id += 1
+        return feats, parts
 
 
 def graph_class(nodes: dict[int, NodeFeatures], node_id: int) -> str:

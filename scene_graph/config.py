@@ -58,6 +58,42 @@ class PlaneConfig:
 
 
 @dataclass
+class LayoutConfig:
+    """Mapped layout entities -> layout nodes (``layout.py``): walls split into planar parts,
+    stray faces dropped. Not in the paper, whose maps keep one entity per wall; a panoptic map
+    has one entity per stuff class. Input that is already one element per entity (ground truth)
+    passes unchanged."""
+
+    enabled: bool = True
+    #: Faces with |n_z| below this are vertical (wall candidates).
+    vertical_max_nz: float = 0.3
+    #: Faces within this angle (deg) of a wall's normal (either side) are parallel to it.
+    parallel_deg: float = 15.0
+    #: A layout element is at most this thick (m): faces this close to its plane belong to it
+    #: (TSDF noise, both faces of a 10 cm ground-truth wall); farther ones are not part of it.
+    thickness: float = 0.12
+    #: A wall part needs this much area (m^2) and this length along the wall (m).
+    min_area: float = 0.25
+    min_length: float = 0.3
+    #: Faces of one plane separated by more than this gap (m) along the wall are two walls.
+    max_gap: float = 1.0
+    max_parts: int = 16
+    #: Split parts are numbered from max(part_id_base, largest entity id + 1) upwards.
+    part_id_base: int = 1000
+
+
+@dataclass
+class FragmentConfig:
+    """Stray fragments of object meshes (``fragments.py``); not in the paper (clean meshes assumed)."""
+
+    enabled: bool = True
+    #: Connected components whose bounds are at most this far apart (m) are one piece.
+    max_gap: float = 0.05
+    #: Pieces apart from the largest one are dropped below this share of the mesh area.
+    max_share: float = 0.05
+
+
+@dataclass
 class SupportConfig:
     """Support inference (Eqs. (1)-(3)) and its fallbacks (Sec. 2.2, Sec. 6.5)."""
 
@@ -123,10 +159,14 @@ class ProximalConfig:
 class MatchConfig:
     """Matching predicted to ground-truth nodes for the metrics (Sec. 5.3)."""
 
-    #: Minimum 3D box IoU for a predicted node to correspond to a ground-truth node ...
+    #: Objects: minimum 3D box IoU for a predicted node to correspond to a ground-truth node ...
     min_iou: float = 0.1
-    #: ... or minimum share of the smaller box inside the other (a partially seen wall).
+    #: ... or minimum share of the predicted box inside the ground-truth box (a partially seen cabinet).
     min_containment: float = 0.25
+    #: Layout nodes match layout nodes of their class only, when at least this share of the
+    #: predicted box lies inside the ground-truth box grown by layout_margin (m) per side.
+    layout_min_containment: float = 0.5
+    layout_margin: float = 0.1
     #: Added to the (1 - IoU) cost of a cross-class pair (allowed, counted as a substitution).
     class_mismatch_cost: float = 1.0
     #: Allow matches across classes at all (a mislabelled entity is a substitution).
@@ -135,6 +175,10 @@ class MatchConfig:
     min_extent: float = 0.05
     #: IoU threshold of the box mAP (Table 4).
     map_iou: float = 0.5
+    #: "Seen-only" evaluation: a ground-truth entity counts as seen when the recording's camera
+    #: saw at least this many of its pixels over all frames (scene.json ``visible_pixels``);
+    #: unseen ones (and predictions matched to them) leave the comparison.
+    seen_min_pixels: int = 10000
 
 
 @dataclass
@@ -143,6 +187,8 @@ class SceneGraphConfig:
 
     box: BoxConfig = field(default_factory=BoxConfig)
     planes: PlaneConfig = field(default_factory=PlaneConfig)
+    layout: LayoutConfig = field(default_factory=LayoutConfig)
+    fragments: FragmentConfig = field(default_factory=FragmentConfig)
     support: SupportConfig = field(default_factory=SupportConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
     proximal: ProximalConfig = field(default_factory=ProximalConfig)

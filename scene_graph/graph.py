@@ -175,6 +175,25 @@ class ContactGraph:
             if a not in self.nodes or b not in self.nodes:
                 raise GraphError(f"proximal edge ({a}, {b}) names an unknown node")
 
+    def restricted(self, keep: set[int]) -> ContactGraph:
+        """The graph over the ``keep`` nodes only; a kept node whose parent is dropped hangs off its
+        nearest kept ancestor (what the tree looks like to someone who never saw the dropped ones)."""
+        out = ContactGraph(name=self.name, frame_id=self.frame_id, nodes={self.root_id: self.nodes[self.root_id]},
+                           root_id=self.root_id)
+        for nid, node in self.nodes.items():
+            if nid == self.root_id or nid not in keep:
+                continue
+            out.nodes[nid] = node
+            edge = self.supports[nid]
+            parent = edge.parent_id
+            while parent != self.root_id and parent not in keep:
+                parent = self.supports[parent].parent_id
+            out.supports[nid] = SupportEdge(parent, nid, edge.kind, edge.score, edge.contact_ratio, edge.distance,
+                                            edge.plane, edge.joint)
+        out.proximal = [(a, b) for a, b in self.proximal if a in out.nodes and b in out.nodes]
+        out.validate()
+        return out
+
     # ------------------------------------------------------------------ presentation
     def format_tree(self, scores: bool = True) -> str:
         """Indented parse tree: name [class, category] and, per edge, score, joint and kind."""

@@ -35,20 +35,13 @@ def load_ground_truth_graph(folder: str | Path) -> ContactGraph:
 
 
 def restrict_graph(graph: ContactGraph, keep: set[int]) -> ContactGraph:
-    """The graph over the ``keep`` nodes only; a kept node whose parent is dropped hangs off its
-    nearest kept ancestor (what the tree looks like to someone who never saw the dropped ones)."""
-    out = ContactGraph(name=graph.name, frame_id=graph.frame_id, nodes={graph.root_id: graph.nodes[graph.root_id]},
-                       root_id=graph.root_id)
-    for nid, node in graph.nodes.items():
-        if nid == graph.root_id or nid not in keep:
-            continue
-        out.nodes[nid] = node
-        edge = graph.supports[nid]
-        parent = edge.parent_id
-        while parent != graph.root_id and parent not in keep:
-            parent = graph.supports[parent].parent_id
-        out.supports[nid] = SupportEdge(parent, nid, edge.kind, edge.score, edge.contact_ratio, edge.distance,
-                                        edge.plane, edge.joint)
-    out.proximal = [(a, b) for a, b in graph.proximal if a in out.nodes and b in out.nodes]
-    out.validate()
-    return out
+    """The graph over the ``keep`` nodes only (``ContactGraph.restricted``)."""
+    return graph.restricted(keep)
+
+
+def seen_entity_ids(scene: GroundTruthScene, min_pixels: int) -> set[int] | None:
+    """Ids of the entities the recording's camera saw at least ``min_pixels`` pixels of, over all frames
+    (scene.json ``visible_pixels``); None when the ground truth does not record visibility."""
+    if not any(e.visible_pixels > 0 for e in scene.entities):
+        return None
+    return {e.id for e in scene.entities if e.visible_pixels >= min_pixels}

@@ -158,6 +158,7 @@ def graph_edit_distance(pred: ContactGraph, gt: ContactGraph, cfg: MatchConfig |
         substitutions=len(matching.substituted), tree_edit_distance=ted, ted_exact=exact,
         wrong_support_nodes=sorted(pred.nodes[p].name for p in wrong),
         missing_nodes=[gt.nodes[g].name for g in missing],
+        # A substitution names the ground-truth node it was matched to (geometry, never the id).
         extra_nodes=[pred.nodes[p].name for p in extra] + sorted(
-            f"{pred.nodes[p].name} (as {gt.nodes[p2g[p]].class_name})" for p in matching.substituted),
+            f"{pred.nodes[p].name} (as {gt.nodes[p2g[p]].name})" for p in matching.substituted),
     )

@@ -14,44 +14,65 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Match the predicted nodes to the ground-truth nodes (class + 3D box overlap, Hungarian), then "
         "print the graph edit distance as in the paper's Table 5 (total = 2 x wrong support + missing + wrong "
         "detection), the exact tree edit distance under that matching, and the oriented 3D box mAP@0.5 of the "
-        "refined and the unrefined boxes (Table 4).",
+        "refined and the unrefined boxes (Table 4); then the same restricted to what the recording saw (ground-truth "
+        "entities with enough visible pixels; predictions matched to unseen entities are left out too).",
     )
     p.add_argument("prediction", help="contact_graph.json written by 'scene-recon graph'")
     p.add_argument("groundtruth", help="ground-truth folder (scene.json)")
     p.add_argument("--config", metavar="YAML", help="builder config with the match settings (default: "
                    "config/scene_graph.yaml)")
+    p.add_argument("--seen-min-pixels", type=int, metavar="N",
+                   help="seen-only figures: a ground-truth entity counts as seen from N visible pixels over the "
+                   "recording (default: match.seen_min_pixels of the config)")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
     p.set_defaults(func=run)
+
+
+def _print(result: dict, indent: str = "") -> None:
+    g = result["ged"]
+    print(f"{indent}ground-truth nodes: {g['gt_nodes']}   predicted nodes: {g['pred_nodes']}")
+    print(f"{indent}GED total: {g['total']}  ({100 * g['ratio']:.1f}% of ground-truth nodes)   "
+          f"exact tree edit distance: {g['tree_edit_distance']}")
+    print(f"{indent}  wrong support:   {g['wrong_support']}  (x2 operations)  {', '.join(g['wrong_support_nodes'])}")
+    print(f"{indent}  missing:         {g['missing']}  {', '.join(g['missing_nodes'])}")
+    print(f"{indent}  wrong detection: {g['wrong_detection']}  {', '.join(g['extra_nodes'])}")
+    for key, label in (("box_map_refined", "refined"), ("box_map_unrefined", "unrefined")):
+        m = result[key]
+        per = ", ".join(f"{c} {100 * v:.0f}" for c, v in m["per_class"].items())
+        print(f"{indent}box mAP@{m['iou_threshold']:.1f} ({label}): {100 * m['mAP']:.1f}   [{per}]")
 
 
 def run(args: argparse.Namespace) -> int:
     from scene_graph.config import load_scene_graph_config
     from scene_graph.graph import ContactGraph, GraphError
-    from scene_graph.ground_truth import load_ground_truth_graph
+    from scene_graph.ground_truth import ground_truth_graph, seen_entity_ids
     from scene_graph.metrics import evaluate_graph
+    from scene_recon.synthetic.scene import GroundTruthScene
 
     cfg = load_scene_graph_config(args.config)
+    if args.seen_min_pixels is not None:
+        cfg.match.seen_min_pixels = args.seen_min_pixels
     try:
         pred = ContactGraph.load(args.prediction)
     except (OSError, GraphError) as exc:
         raise FileNotFoundError(f"cannot read the predicted graph: {exc}") from exc
     try:
-        gt = load_ground_truth_graph(args.groundtruth)
-    except (OSError, ValueError) as exc:
+        scene = GroundTruthScene.load(args.groundtruth)
+    except (OSError, ValueError, KeyError) as exc:
         raise FileNotFoundError(f"cannot read the ground truth {args.groundtruth}: {exc}") from exc
-    result = evaluate_graph(pred, gt, cfg.match)
+    seen = seen_entity_ids(scene, cfg.match.seen_min_pixels)
+    result = evaluate_graph(pred, ground_truth_graph(scene), cfg.match, seen)
     if args.json:
         print_json(result)
         return 0
-    g = result["ged"]
-    print(f"ground-truth nodes: {g['gt_nodes']}   predicted nodes: {g['pred_nodes']}")
-    print(f"GED total: {g['total']}  ({100 * g['ratio']:.1f}% of ground-truth nodes)   "
-          f"exact tree edit distance: {g['tree_edit_distance']}")
-    print(f"  wrong support:   {g['wrong_support']}  (x2 operations)  {', '.join(g['wrong_support_nodes'])}")
-    print(f"  missing:         {g['missing']}  {', '.join(g['missing_nodes'])}")
-    print(f"  wrong detection: {g['wrong_detection']}  {', '.join(g['extra_nodes'])}")
-    for key, label in (("box_map_refined", "refined"), ("box_map_unrefined", "unrefined")):
-        m = result[key]
-        per = ", ".join(f"{c} {100 * v:.0f}" for c, v in m["per_class"].items())
-        print(f"box mAP@{m['iou_threshold']:.1f} ({label}): {100 * m['mAP']:.1f}   [{per}]")
+    _print(result)
+    if seen is None:
+        print("seen-only: not available (the ground truth records no visible_pixels)")
+        return 0
+    r = result["seen_only"]
+    print(f"seen only (ground-truth entities with >= {cfg.match.seen_min_pixels} visible pixels over the recording):")
+    print(f"  unseen, left out: {', '.join(r['unseen_gt_nodes']) or '-'}")
+    if r["void_predictions"]:
+        print(f"  predictions matched to unseen entities, left out: {', '.join(r['void_predictions'])}")
+    _print(r, "  ")
     return 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import re
+import time
 from pathlib import Path
 
 from .common import print_json
@@ -33,7 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from scene_graph.builder import build_contact_graph
+    from scene_graph.builder import ContactGraphBuilder
     from scene_graph.config import load_scene_graph_config
     from scene_graph.joints import load_support_joints
     from scene_graph.scene_io import SourceError, load_source
@@ -55,7 +56,13 @@ def run(args: argparse.Namespace) -> int:
         scene = GroundTruthScene.load(source.path)
         obs_cfg = ObservationConfig(contact_band=args.contact_band)
         entities, observed = observed_entities(scene, camera_views(args.observed, obs_cfg), obs_cfg)
-    graph = build_contact_graph(entities, cfg, joints, name=source.name, frame_id=source.frame_id)
+    builder = ContactGraphBuilder(cfg, joints)
+    t0 = time.perf_counter()
+    builder.update(entities)
+    t1 = time.perf_counter()
+    graph = builder.build(name=source.name, frame_id=source.frame_id)
+    graph.stats["features_s"] = t1 - t0
+    graph.stats["total_s"] = time.perf_counter() - t0
     if observed is not None:
         graph.stats["observed_area_share"] = observed
     safe = re.sub(r"[^A-Za-z0-9_.-]", "_", source.name) or "scene"
@@ -70,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     if args.urdf:
         from scene_graph.kinematic import to_kinematic_tree
 
-        tree = to_kinematic_tree(graph, {e.id: e for e in entities}, joints.object_mass)
+        tree = to_kinematic_tree(graph, builder.node_entities(), joints.object_mass)  # split walls included
         files["urdf"] = str(tree.to_urdf(out / "urdf", filename="scene.urdf"))
     if args.json:
         print_json({"source": str(source.path), "kind": source.kind, "name": source.name,
