@@ -84,7 +84,7 @@ class MapperNode(Node):
         self.create_service(ExtractEntities, "extract_entities", self._srv_extract)
         self.colors: collections.deque[Image] = collections.deque(maxlen=30)
         self.info: CameraInfo | None = None
-        self.queue: collections.deque[tuple[Image, Image]] = collections.deque()
+        self.queue: collections.deque[tuple[Image, Image, float]] = collections.deque()
         self.pending: list[_Pending] = []
         self.counters = collections.Counter()
         self._changed = False
@@ -108,17 +108,12 @@ class MapperNode(Node):
         if best is None or abs(stamp_to_ns(best.header.stamp) - t) > self.sync_slop_ns:
             self.counters["unpaired_depth"] += 1
             return
-        self.queue.append((best, msg))
+        self.queue.append((best, msg, time.monotonic()))
         while len(self.queue) > self.max_queue:  # cannot keep up: drop the oldest, keep the newest
             self.queue.popleft()
             self.counters["dropped_backlog"] += 1
 
     def _make_frame(self, color_msg: Image, depth_msg: Image) -> RGBDFrame | None:
-        if self.info is None:
-            self.counters["no_camera_info"] += 1
-            if self.counters["no_camera_info"] == 1:
-                self.get_logger().warning("no camera info received yet; frames wait for it")
-            return None
         stamp = stamp_to_ns(depth_msg.header.stamp)
         try:
             color = image_to_rgb(color_msg)
@@ -137,12 +132,20 @@ class MapperNode(Node):
         self._collect_segmentations()
         if not self.queue:
             return
-        color_msg, depth_msg = self.queue[0]
+        color_msg, depth_msg, arrived = self.queue[0]
+        # waiting is measured from the frame's arrival, not its stamp: replayed recordings carry old stamps
+        waited = time.monotonic() - arrived
+        if self.info is None:
+            if waited < self.tf_wait_s:
+                return
+            self.queue.popleft()
+            self.counters["no_camera_info"] += 1
+            self.get_logger().warning("frame skipped: no camera info received yet", throttle_duration_sec=5.0)
+            return
         try:
             frame = self._make_frame(color_msg, depth_msg)
         except TransformLookupError as exc:
-            age = self.get_clock().now().nanoseconds - stamp_to_ns(depth_msg.header.stamp)
-            if age < self.tf_wait_s * 1e9 and abs(age) < 3600e9:
+            if waited < self.tf_wait_s:
                 return  # TF may still arrive: keep the frame at the head of the queue
             self.queue.popleft()
             self.counters["no_tf"] += 1
