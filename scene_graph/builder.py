@@ -30,6 +30,7 @@ from .fragments import drop_fragments
 from .graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
 from .joints import SupportJointTable, load_support_joints
 from .layout import split_layout
+from .merge import fragment_hosts, merged_entity
 from .proximal import proximal_relations
 from .refine import refine_box
 from .support import SupportInference
@@ -71,6 +72,8 @@ class ContactGraphBuilder:
         self.cfg = cfg or load_scene_graph_config()
         self.joints = joints or load_support_joints(self.cfg.support_joints or None)
         self._cache: dict[int, _Cached] = {}
+        #: Merged over-segmented nodes of the last build, by their members' (id, revision, size).
+        self._merged: dict[tuple, NodeFeatures] = {}
         self.skipped: dict[int, str] = {}
 
     @property
@@ -82,9 +85,6 @@ class ContactGraphBuilder:
         """The (first) node of an entity; its ``entity.revision`` is the entity's revision."""
         return self._cache[entity_id].nodes[0]
 
-    def node_entities(self) -> dict[int, Entity]:
-        """Node id -> the entity (or layout part) behind it, as of the last ``build``."""
-        return {f.id: f.entity for c in self._cache.values() for f in c.nodes}
 
     def update(self, entities: Iterable[Entity]) -> list[int]:
         """Add or refresh entities; only those with a new (id, revision) are recomputed. Returns them."""
@@ -126,6 +126,7 @@ class ContactGraphBuilder:
         cfg = self.cfg
         t0 = time.perf_counter()
         feats, layout_parts = self._nodes()
+        feats, merged = self._merge_fragments(feats)
         names = _unique_names(feats)
         nodes_by_id = {f.id: f for f in feats}
         neighbours, support_pairs = support_neighbours(feats, cfg.proximal.broadphase)
@@ -152,16 +153,18 @@ class ContactGraphBuilder:
                                   cfg.proximal, skip)
         graph.proximal = prox.pairs
         graph.skipped = dict(self.skipped)
+        for host, frags in merged.items():
+            for i in frags:
+                graph.skipped[i] = f"fragment of node {host} (same class, box inside it): merged"
         t2 = time.perf_counter()
         graph.stats = {
-            "layout_parts": layout_parts,
+            "layout_parts": layout_parts, "merged_fragments": merged,
             "nodes": len(feats), "support_candidate_pairs": support_pairs, "support_plane_tests": support.plane_tests,
             "proximal_broadphase_pairs": prox.broadphase_pairs, "proximal_exact_tests": prox.exact_tests,
             "support_s": t1 - t0, "relations_s": t2 - t1,
         }
         graph.validate()
         return graph
-
 
     def _nodes(self) -> tuple[list[NodeFeatures], dict[int, list[int]]]:
         """Every node; split layout parts renumbered to ids no entity uses (source id -> part ids)."""
@@ -181,6 +184,41 @@ class ContactGraphBuilder:
                 parts.setdefault(sid, []).append(next_id)
                 next_id += 1
         return feats, parts
+
+
+    def _merge_fragments(self, feats: list[NodeFeatures]) -> tuple[list[NodeFeatures], dict[int, list[int]]]:
+        """Over-segmented same-class nodes joined (``merge.py``); host id -> fragment ids."""
+        hosts = fragment_hosts(feats, self.cfg.merge)
+        if not hosts:
+            self._merged.clear()
+            return feats, {}
+        by_id = {f.id: f for f in feats}
+        groups: dict[int, list[int]] = {}
+        for frag, host in sorted(hosts.items()):
+            groups.setdefault(host, []).append(frag)
+        out, cache = [], {}
+        for f in feats:
+            if f.id in hosts:
+                continue
+            if f.id not in groups:
+                out.append(f)
+                continue
+            members = [f] + [by_id[i] for i in groups[f.id]]
+            key = tuple((m.id, m.entity.revision, len(m.entity.vertices)) for m in members)
+            merged = self._merged.get(key)
+            if merged is None:
+                with single_blas_thread():
+                    merged = compute_features(merged_entity(f.entity, [m.entity for m in members[1:]]), self.cfg)
+            cache[key] = merged
+            out.append(merged)
+        self._merged = cache
+        return out, groups
+
+    def node_entities(self) -> dict[int, Entity]:
+        """Node id -> the entity (layout part, merged object) behind it, as of the last ``build``."""
+        out = {f.id: f.entity for c in self._cache.values() for f in c.nodes}
+        out.update({f.id: f.entity for f in self._merged.values()})
+        return out
 
 
 def graph_class(nodes: dict[int, NodeFeatures], node_id: int) -> str:

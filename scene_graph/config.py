@@ -89,8 +89,23 @@ class FragmentConfig:
     enabled: bool = True
     #: Connected components whose bounds are at most this far apart (m) are one piece.
     max_gap: float = 0.05
-    #: Pieces apart from the largest one are dropped below this share of the mesh area.
+    #: Pieces apart from the largest one are dropped below this share of the mesh area ...
     max_share: float = 0.05
+    #: ... and, when more than far_gap (m) away from it, below far_share.
+    far_gap: float = 0.15
+    far_share: float = 0.25
+
+
+@dataclass
+class MergeConfig:
+    """Over-segmented objects (``merge.py``): a same-class node mostly inside a larger one joins it.
+    Not in the paper (its builder takes the map's instances as they are)."""
+
+    enabled: bool = True
+    #: Share of the smaller node's box volume inside the larger node's box.
+    min_inside: float = 0.5
+    #: Boxes are padded to this size per axis (m) first (a thin strip has no volume).
+    min_extent: float = 0.02
 
 
 @dataclass
@@ -120,6 +135,12 @@ class SupportConfig:
     invisible_planes: bool = True
     invisible_max_gap: float = 0.08
     inferred_min_height: float = 0.05
+    #: Eq. (2) on a mapped floor: the floor is never seen under the objects standing on it (a
+    #: hole exactly under each footprint, contact ratio ~0). With this on, the floor's dominant
+    #: supporting plane also covers the child's footprint cells that no other candidate's box
+    #: footprint covers (nothing can stand between the floor and the child there); Eq. (3)'s
+    #: distance term still applies. Not in the paper (its Eq. (2) assumes the floor was seen).
+    floor_under_objects: bool = True
     #: Fallback: a child whose bottom is within this height (m) of the floor goes to the floor;
     #: otherwise the nearest wall within wall_distance (m) (an object hung on or leaning against
     #: a wall, Sec. 6.5), otherwise the floor (the root when there is no floor).
@@ -189,6 +210,7 @@ class SceneGraphConfig:
     planes: PlaneConfig = field(default_factory=PlaneConfig)
     layout: LayoutConfig = field(default_factory=LayoutConfig)
     fragments: FragmentConfig = field(default_factory=FragmentConfig)
+    merge: MergeConfig = field(default_factory=MergeConfig)
     support: SupportConfig = field(default_factory=SupportConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
     proximal: ProximalConfig = field(default_factory=ProximalConfig)

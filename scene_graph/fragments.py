@@ -9,8 +9,9 @@ node matches nothing and supports nothing. Before the box is fitted (not in the 
 * the mesh's connected components (shared edges) are grouped by single linkage: two components
   whose axis-aligned bounds are at most ``max_gap`` apart belong together;
 * the group with the largest area is the object's body; every other group is dropped when it
-  holds less than ``max_share`` of the mesh area (a larger separate piece is kept: the far end of
-  a monitor seen in two parts is part of the object).
+  holds less than ``max_share`` of the mesh area, or, when it lies more than ``far_gap`` from the
+  body, less than ``far_share`` (a large separate piece is kept: an object whose middle is
+  hidden behind a chair back is seen in two parts).
 
 Complete ground-truth meshes are single pieces (or touching parts) and pass unchanged; so do
 point-only entities.
@@ -78,7 +79,14 @@ def body_faces(entity: Entity, cfg: FragmentConfig) -> NDArray[np.bool_] | None:
     if total <= 0.0:
         return None
     body = int(np.argmax(group_area))
-    keep_group = (group_area >= cfg.max_share * total)
+    n_group = len(group_area)
+    glo = np.full((n_group, 3), np.inf)
+    ghi = np.full((n_group, 3), -np.inf)
+    np.minimum.at(glo, group, lo)
+    np.maximum.at(ghi, group, hi)
+    body_gap = np.maximum(np.maximum(glo - ghi[body], glo[body] - ghi), 0.0).max(axis=1)
+    share = group_area / total
+    keep_group = np.where(body_gap <= cfg.far_gap, share >= cfg.max_share, share >= cfg.far_share)
     keep_group[body] = True
     if keep_group.all():
         return None

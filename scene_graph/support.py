@@ -108,15 +108,33 @@ class SupportInference:
         return False
 
     def _candidates(self, child: NodeFeatures) -> list[int]:
-        """Nodes whose bottoms are below the child's box bottom and whose footprints meet it."""
+        """Nodes whose bottoms are below the child's box bottom and whose footprints meet it.
+
+        A layout child (a wall) only considers layout parents: a wall whose lower part hides
+        behind a desk stands on the floor, not on the desk.
+        """
         bottom = child.box.z_min
         out = []
         for j in sorted(self.neighbours.get(child.id, ())):
             cand = self.nodes[j]
             if cand.box.z_min > bottom + self.cfg.above_tolerance or self._is_ancestor(child.id, j):
                 continue
+            if child.category == LAYOUT and cand.category != LAYOUT:
+                continue
             out.append(j)
         return out
+
+    def _floor_under(self, child: NodeFeatures, candidates: list[int], grid) -> np.ndarray:
+        """Cells of the child's footprint where the floor plane continues unseen under the child:
+        no other candidate's footprint covers them (nothing can stand between the floor and the child)."""
+        free = np.ones(len(grid.world), dtype=bool)
+        for j in candidates:
+            cand = self.nodes[j]
+            if j in self.floors or cand.category == LAYOUT:
+                continue
+            local = cand.box.to_local_xy(grid.world)
+            free &= ~np.all(np.abs(local) <= 0.5 * cand.box.size[:2] + EPS, axis=1)
+        return free
 
     # ------------------------------------------------------------------ Eqs. (1)-(3)
     def _score_planes(self, child: NodeFeatures, candidates: list[int]) -> list[SupportDecision]:
@@ -126,7 +144,12 @@ class SupportInference:
         grid = footprint_grid(box, cfg.grid_cell_size, cfg.grid_max_cells)
         entries: list[tuple[int, SurfacePlane, float]] = []
         covers = []
+        floor_free = None
         for pid in candidates:
+            main = None
+            if cfg.floor_under_objects and pid in self.floors:  # the floor's dominant supporting plane
+                sup = [sp for sp in self.nodes[pid].planes if sp.is_support(cfg.a_th)]
+                main = max(sup, key=lambda sp: sp.plane.area) if sup else None
             for sp in self._planes_of(pid):
                 if not sp.is_support(cfg.a_th):  # Eq. (1): n . g <= a_th
                     continue
@@ -138,6 +161,10 @@ class SupportInference:
                                       sp.region_bounds() if len(sp.region_triangles) else None)
                 if len(sp.region_points):
                     cov |= points_cover(grid, sp.region_points)
+                if sp is main:
+                    if floor_free is None:
+                        floor_free = self._floor_under(child, candidates, grid)
+                    cov |= floor_free
                 if cov.any():
                     entries.append((pid, sp, h))
                     covers.append(cov)

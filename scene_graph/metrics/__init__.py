@@ -40,7 +40,7 @@ def evaluate_graph(pred: ContactGraph, gt: ContactGraph, cfg: MatchConfig | None
     if seen is not None:
         pred_r, gt_r, void = restrict_to_seen(pred, gt, seen, cfg)
         r = evaluate_graph(pred_r, gt_r, cfg)
-        r["unseen_gt_nodes"] = sorted(gt.nodes[g].name for g in gt.nodes if g != gt.root_id and g not in seen)
+        r["unseen_gt_nodes"] = [gt.nodes[g].name for g in sorted(gt.nodes) if g != gt.root_id and g not in seen]
         r["void_predictions"] = void
         out["seen_only"] = r
     return out
