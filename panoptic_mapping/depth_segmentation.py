@@ -20,6 +20,11 @@ from panoptic_mapping.dataio.frame import CameraIntrinsics
 _EPS = 1e-9
 
 
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per-pixel dot product of two (H, W, 3) images (faster than einsum for this shape)."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
 def backproject(depth: np.ndarray, intr: CameraIntrinsics) -> np.ndarray:
     """(H, W, 3) float32 camera-frame points (x right, y down, z forward); z = 0 where invalid."""
     h, w = depth.shape
@@ -57,7 +62,7 @@ def estimate_normals(points: np.ndarray, valid: np.ndarray, step: int = 2, smoot
     ok[:step, :] = ok[-step:, :] = False
     n = np.where(ok[..., None], n / np.maximum(norm, _EPS), 0.0).astype(np.float32)
     # face the camera: n . p < 0
-    flip = np.einsum("ijk,ijk->ij", n, points) > 0
+    flip = _dot(n, points) > 0
     n[flip] *= -1
     return n
 
@@ -85,9 +90,9 @@ def edge_map(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, cfg: De
             pj = _shift(points, dy, dx, 0.0)
             nj = _shift(normals, dy, dx, 0.0)
             vj = _shift(valid, dy, dx, False)
-            d = np.einsum("ijk,ijk->ij", pj - points, normals)
+            d = _dot(pj - points, normals)
             disc = np.abs(d) > margin
-            concave = (d > 0) & (np.einsum("ijk,ijk->ij", normals, nj) < cfg.min_convexity)
+            concave = (d > 0) & (_dot(normals, nj) < cfg.min_convexity)
             edge |= vj & (disc | concave)
     return edge
 

@@ -174,12 +174,13 @@ def _absorb_edge_pixels(geo: np.ndarray, pan: np.ndarray, mask_of: np.ndarray, p
     edge = (geo == 0) & (z > 0) & (host[pan] > 0)
     if not np.any(edge):
         return geo, np.bincount(geo.ravel(), minlength=n_g)
-    flat_geo, flat_z = geo.ravel(), z.ravel()
-    inside = flat_geo > 0
-    zmin = np.full(n_g, np.inf)
-    zmax = np.full(n_g, -np.inf)
-    np.minimum.at(zmin, flat_geo[inside], flat_z[inside])
-    np.maximum.at(zmax, flat_geo[inside], flat_z[inside])
+    from scipy import ndimage
+
+    index = np.arange(n_g)
+    zmin = np.asarray(ndimage.minimum(z, geo, index), np.float64)
+    zmax = np.asarray(ndimage.maximum(z, geo, index), np.float64)
+    empty = np.bincount(geo.ravel(), minlength=n_g) == 0
+    zmin[empty], zmax[empty] = np.inf, -np.inf
     cand = host[pan[edge]]
     ze = z[edge]
     margin = cfg.absorb_depth_margin_m

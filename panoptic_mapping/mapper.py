@@ -18,6 +18,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from panoptic_mapping.config import MapperConfig
@@ -98,9 +99,7 @@ class PanopticMapper:
         t0 = time.perf_counter()
         cfg = self.config
         ds = cfg.downsample
-        depth = downsample_depth(frame.depth, ds)
-        depth = np.where((depth >= cfg.tsdf.min_depth_m) & (depth <= cfg.tsdf.max_depth_m), depth, 0.0)
-        depth = depth.astype(np.float32)
+        depth = np.asarray(downsample_depth(frame.depth, ds), np.float32)  # max depth: applied by integration
         intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
         area = 1.0 / (ds * ds)
         t = {}
@@ -111,6 +110,8 @@ class PanopticMapper:
             self.frames_integrated += 1
             t1 = time.perf_counter()
             return FrameStats(False, 0, 0, 0, 0, {"integration": (t1 - t0) * 1000})
+        if cfg.tsdf.min_depth_m > 0:  # too-near readings carry no usable label geometry
+            depth = np.where(depth >= cfg.tsdf.min_depth_m, depth, np.float32(0))
         geo, points, _normals = segment_depth(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
         t["depth_segmentation"] = time.perf_counter()
         if masks is not None:
@@ -120,7 +121,8 @@ class PanopticMapper:
         min_pts = max(1, round(cfg.fusion.min_segment_points * area))
         segs = fuse(geo, masks, points, cfg.fusion, full=self.full, min_points=min_pts)
         t["fusion"] = time.perf_counter()
-        world = points.reshape(-1, 3) @ frame.pose[:3, :3].T.astype(np.float32) + frame.pose[:3, 3].astype(np.float32)
+        # (N, 3) @ (3, 3) in numpy is slow for this shape; cv2.transform is a tight C loop
+        world = cv2.transform(points.reshape(-1, 1, 3), frame.pose[:3, :].astype(np.float32)).reshape(-1, 3)
         segmented = bool(masks.labels.any())
         label_of_seg, new_labels, map_labels = self._associate(segs, world, count_merges=segmented)
         t["association"] = time.perf_counter()
