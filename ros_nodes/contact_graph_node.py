@@ -21,7 +21,6 @@ from pathlib import Path
 from urllib.parse import unquote, urlparse
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -35,6 +34,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from cad_replacement.cad.feature_types import Plane
+from ros_nodes.runner import run_node
 from scene_graph.box import GravityBox
 from scene_graph.builder import ContactGraphBuilder
 from scene_graph.classify import ARTICULATED, LAYOUT, RIGID, SCENE
@@ -43,7 +43,6 @@ from scene_graph.entity import Entity, EntityError
 from scene_graph.graph import ContactGraph, GraphNode, SupportEdge
 from scene_graph.joints import load_support_joints
 from scene_graph.planes import SurfacePlane
-from scene_recon.ros_env import ensure_ros_environment
 
 NODE_TYPE = {SCENE: ContactGraphNodeMsg.TYPE_SCENE, LAYOUT: ContactGraphNodeMsg.TYPE_LAYOUT,
              RIGID: ContactGraphNodeMsg.TYPE_RIGID, ARTICULATED: ContactGraphNodeMsg.TYPE_ARTICULATED}
@@ -281,17 +280,7 @@ class ContactGraphNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    ensure_ros_environment()
-    rclpy.init(args=args)
-    node = ContactGraphNode()
-    try:
-        rclpy.spin(node)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(ContactGraphNode, args)
 
 
 if __name__ == "__main__":

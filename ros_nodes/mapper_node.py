@@ -16,7 +16,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import rclpy
 from rclpy.node import Node
 from scene_recon_interfaces.msg import PanopticEntityArray
 from scene_recon_interfaces.srv import ExtractEntities, LoadMap, ResetMap, SaveMap, SegmentImage
@@ -32,9 +31,9 @@ from panoptic_mapping.pipeline import class_metas
 from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
 from ros_nodes.entity_conversions import entity_to_msg, map_markers
 from ros_nodes.qos import SENSOR_RELIABLE
+from ros_nodes.runner import run_node
 from ros_nodes.tf_listener import TFListener
 from scene_recon.config import CONFIG_DIR, ConfigError, load_config
-from scene_recon.ros_env import ensure_ros_environment
 
 
 @dataclass
@@ -278,17 +277,7 @@ class MapperNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    ensure_ros_environment()
-    rclpy.init(args=args)
-    node = MapperNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(MapperNode, args)
 
 
 if __name__ == "__main__":
