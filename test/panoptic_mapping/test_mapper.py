@@ -248,3 +248,19 @@ def test_mask_on_edge_pixels_is_rescued_in_full_mode_only():
     assert full.count == 2 and full.class_id[full.image[6, 3]] == CUP
     off = fuse(geo, masks, pts, FusionConfig(rescue_edge_masks=False), full=True, min_points=10)
     assert off.image[6, 3] == 0
+
+
+def test_memory_grows_with_observed_surface_only(tiny_scene):
+    _, renderer = tiny_scene
+    mapper = _mapper()
+    frame, gt = _frame(renderer, EYES[0], index=0)
+    mapper.integrate(frame, _gt_masks(gt))
+    blocks = mapper.tsdf.num_blocks
+    for i in range(1, 4):  # the same view again: nothing new is allocated
+        frame, gt = _frame(renderer, EYES[0], index=i)
+        mapper.integrate(frame, None)
+    assert mapper.tsdf.num_blocks == blocks
+    frame, gt = _frame(renderer, (0.0, 0.0, 1.5), target=(-1.5, -1.0, 0.3), index=9)  # looks elsewhere
+    mapper.integrate(frame, None)
+    assert mapper.tsdf.num_blocks > blocks
+    assert mapper.tsdf.memory_bytes() == mapper.tsdf.num_blocks * 8**3 * 16
