@@ -66,6 +66,21 @@ def map_scene(bag: Path, out: Path, noise: str) -> float:
     return time.perf_counter() - t0
 
 
+def git_commit() -> str:
+    """HEAD of the checkout (+ "-dirty" with local changes): the maps depend on the mapper's version."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return ""
+    return head + ("-dirty" if dirty else "")
+
+
 def configured(base: SceneGraphConfig, changes: dict[str, Any]) -> SceneGraphConfig:
     cfg = load_scene_graph_config()
     cfg.match = base.match
@@ -177,7 +192,8 @@ def main() -> int:
     if "ablation_seen_only_ratio_mean" in summary:
         print("ablation, seen-only GED ratio: " + ", ".join(
             f"{k} {100 * v:.1f}%" for k, v in summary["ablation_seen_only_ratio_mean"].items()))
-    path = write_result("graph_mapped", {"summary": summary, "rows": rows, "maps": str(maps) if args.maps else None})
+    path = write_result("graph_mapped", {"summary": summary, "rows": rows, "maps": str(maps) if args.maps else None,
+                                         "commit": git_commit()})
     print(f"wrote {path}")
     if tmp is not None:
         tmp.cleanup()
