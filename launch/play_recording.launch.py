@@ -3,11 +3,10 @@
     ros2 launch scene_recon play_recording.launch.py source:=/path/to/scene.mcap rate:=1.0
 """
 
+from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
-
-from launch import LaunchDescription
 
 
 def generate_launch_description() -> LaunchDescription:
