@@ -8,7 +8,7 @@ from pathlib import Path
 
 # Set before any rclpy import: these machines allow loopback traffic only.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))
+os.environ.setdefault("ROS_DOMAIN_ID", "17")  # ROS tests pick their own (testsupport.ros.domain_id)
 if not os.environ.get("AMENT_PREFIX_PATH") and (Path(sys.prefix) / "share" / "ament_index").is_dir():
     os.environ["AMENT_PREFIX_PATH"] = sys.prefix
 

@@ -10,6 +10,7 @@ import time
 import numpy as np
 import pytest
 import trimesh
+from testsupport.ros import domain_id
 
 pytestmark = pytest.mark.ros
 
@@ -53,7 +54,7 @@ def test_node_builds_and_updates_the_contact_graph_over_dds():
 
     from ros_nodes.contact_graph_node import ENTITIES_QOS, LATCHED
 
-    domain = str(215 + os.getpid() % 17)
+    domain = str(domain_id("contact_graph"))
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=domain)
     os.environ["ROS_DOMAIN_ID"] = domain
     proc = subprocess.Popen([sys.executable, "-m", "ros_nodes.contact_graph_node"], env=env,

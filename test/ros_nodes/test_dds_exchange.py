@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from testsupport.ros import domain_id
 
 from panoptic_mapping.dataio.transforms import make_transform
 
@@ -26,7 +27,7 @@ def _env(domain: int) -> dict[str, str]:
 
 
 def test_service_call_and_tf_across_processes():
-    env = _env(100 + os.getpid() % 100)
+    env = _env(domain_id("dds_exchange"))
     server = subprocess.Popen([sys.executable, str(PEERS / "segmentation_peer.py")], env=env,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

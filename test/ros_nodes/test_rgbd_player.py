@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from testsupport.ros import domain_id
 
 from panoptic_mapping.dataio import CameraIntrinsics
 from panoptic_mapping.dataio.bag_writer import RGBDBagWriter
@@ -48,7 +49,7 @@ def test_player_publishes_bag_frames(tmp_path):
     from ros_nodes.qos import SENSOR_RELIABLE, TF_DYNAMIC
 
     colors, depths, labels, poses, intr = _write_bag(tmp_path / "rec")
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(150 + os.getpid() % 50))
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id("player")))
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
     rclpy.init()
     node = rclpy.create_node("player_checker")

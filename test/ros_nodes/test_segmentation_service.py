@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from testsupport.ros import domain_id
 
 pytestmark = pytest.mark.ros
 REPO = Path(__file__).resolve().parents[2]
@@ -73,7 +74,7 @@ def test_segmentation_service_over_dds(tmp_path):
     from ros_nodes.qos import SENSOR_RELIABLE
 
     gt_labels, names = _ground_truth(tmp_path / "scene_groundtruth")
-    domain = 200 + os.getpid() % 30
+    domain = domain_id("segmentation")
     env = _env(domain)
     ns = f"/segtest_{os.getpid()}"
     oracle = _start(f"{ns}/oracle", tmp_path / "oracle.log", env, "backend:=oracle",
