@@ -163,7 +163,10 @@ class LabeledTSDF:
         """(vertices, faces, vertex segment labels) of the whole map; labels 0 where unknown."""
         if self.vbg.hashmap().size() == 0:
             return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int32)
-        mesh = self.vbg.extract_triangle_mesh(weight_threshold=float(self.cfg.mesh_weight_threshold))
+        try:
+            mesh = self.vbg.extract_triangle_mesh(weight_threshold=float(self.cfg.mesh_weight_threshold))
+        except RuntimeError:  # Open3D raises instead of returning an empty mesh when no surface is confident
+            return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int32)
         if mesh.vertex.positions.shape[0] == 0:
             return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int32)
         v = mesh.vertex.positions.numpy().astype(np.float64)

@@ -16,6 +16,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from scene_recon_interfaces.msg import PanopticEntityArray
 from scene_recon_interfaces.srv import ExtractEntities, LoadMap, ResetMap, SaveMap, SegmentImage
@@ -67,20 +68,25 @@ class MapperNode(Node):
             self.get_logger().error(f"{exc}; using the default mapper configuration")
             self.config = MapperConfig()
         self.mapper = PanopticMapper(self.config, class_metas())
-        self.tf = TFListener(self)
+        # inputs run on callback groups of their own (other executor threads), so TF and images keep
+        # arriving while a frame is being integrated; TF has a group to itself: sharing one with
+        # the image stream starved it (frames then all lacked poses); the map is touched by one group
+        inputs = MutuallyExclusiveCallbackGroup()
+        self.map_group = MutuallyExclusiveCallbackGroup()
+        self.tf = TFListener(self, callback_group=MutuallyExclusiveCallbackGroup())
         self.create_subscription(Image, p("color_topic", "/camera/color/image_raw").value, self._on_color,
-                                 SENSOR_RELIABLE)
+                                 SENSOR_RELIABLE, callback_group=inputs)
         self.create_subscription(Image, p("depth_topic", "/camera/depth/image_rect_raw").value, self._on_depth,
-                                 SENSOR_RELIABLE)
+                                 SENSOR_RELIABLE, callback_group=inputs)
         self.create_subscription(CameraInfo, p("camera_info_topic", "/camera/color/camera_info").value,
-                                 self._on_info, SENSOR_RELIABLE)
+                                 self._on_info, SENSOR_RELIABLE, callback_group=inputs)
         self.seg_client = self.create_client(SegmentImage, p("segmentation_service", "segment_image").value)
         self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", 1)
         self.pub_markers = self.create_publisher(MarkerArray, "panoptic_map_markers", 1)
-        self.create_service(SaveMap, "save_map", self._srv_save)
-        self.create_service(LoadMap, "load_map", self._srv_load)
-        self.create_service(ResetMap, "reset_map", self._srv_reset)
-        self.create_service(ExtractEntities, "extract_entities", self._srv_extract)
+        self.create_service(SaveMap, "save_map", self._srv_save, callback_group=self.map_group)
+        self.create_service(LoadMap, "load_map", self._srv_load, callback_group=self.map_group)
+        self.create_service(ResetMap, "reset_map", self._srv_reset, callback_group=self.map_group)
+        self.create_service(ExtractEntities, "extract_entities", self._srv_extract, callback_group=self.map_group)
         self.colors: collections.deque[Image] = collections.deque(maxlen=30)
         self.info: CameraInfo | None = None
         self.queue: collections.deque[tuple[Image, Image, float]] = collections.deque()
@@ -90,9 +96,9 @@ class MapperNode(Node):
         self._published_revision: dict[int, int] = {}
         # entity messages by (id, revision, with mesh): unchanged entities are not converted again
         self._msg_cache: dict[tuple[int, int, bool], object] = {}
-        self.create_timer(0.01, self._process)
-        self.create_timer(self.publish_period_s, self._publish)
-        self.create_timer(10.0, self._report)
+        self.create_timer(0.01, self._process, callback_group=self.map_group)
+        self.create_timer(self.publish_period_s, self._publish, callback_group=self.map_group)
+        self.create_timer(10.0, self._report, callback_group=inputs)
 
     # ------------------------------------------------------------------ inputs
     def _on_info(self, msg: CameraInfo) -> None:
@@ -118,7 +124,7 @@ class MapperNode(Node):
             color = image_to_rgb(color_msg)
             depth, n_bad = image_to_depth(depth_msg)
             intr = camera_info_to_intrinsics(self.info)
-            pose = self.tf.buffer.lookup(self.map_frame, color_msg.header.frame_id, stamp)
+            pose = self.tf.lookup(self.map_frame, color_msg.header.frame_id, stamp)
             return RGBDFrame(color, depth, intr, pose, stamp, self.mapper.frames_integrated,
                              color_msg.header.frame_id, n_bad)
         except DatasetError as exc:
@@ -154,14 +160,19 @@ class MapperNode(Node):
         if frame is None:
             return
         if self.mapper.is_keyframe(frame):
-            self.mapper.mark_keyframe(frame)
-            if self.use_segmentation and self.seg_client.service_is_ready():
+            if not self.use_segmentation:
+                self.mapper.mark_keyframe(frame)
+            elif self.seg_client.service_is_ready():
+                self.mapper.mark_keyframe(frame)
                 req = SegmentImage.Request(color=color_msg, has_depth=True, depth=depth_msg)
                 self.pending.append(_Pending(frame, color_msg, depth_msg, self.seg_client.call_async(req),
                                              time.monotonic()))
                 self.counters["segmentation_calls"] += 1
                 return
-            self.counters["keyframes_unsegmented"] += 1
+            else:  # not marked: the next frames stay keyframe candidates until the service is up
+                self.counters["keyframes_unsegmented"] += 1
+                self.get_logger().warning("segmentation service not available: mapping geometry only",
+                                          throttle_duration_sec=10.0)
         self._integrate(frame, None)
 
     def _collect_segmentations(self) -> None:
@@ -233,7 +244,11 @@ class MapperNode(Node):
         if not self._changed:
             return
         self._changed = False
-        msg, ents = self._entities_msg(self.include_meshes)
+        try:
+            msg, ents = self._entities_msg(self.include_meshes)
+        except (RuntimeError, ValueError) as exc:  # never let one bad extraction take the node down
+            self.get_logger().error(f"entity extraction failed: {exc}", throttle_duration_sec=5.0)
+            return
         self.pub_entities.publish(msg)
         self.pub_markers.publish(map_markers(ents, self.map_frame, msg.header.stamp))
 
@@ -271,13 +286,16 @@ class MapperNode(Node):
         return res
 
     def _srv_extract(self, req: ExtractEntities.Request, res: ExtractEntities.Response) -> ExtractEntities.Response:
-        res.entities, _ = self._entities_msg(req.include_meshes)
-        res.success, res.message = True, f"{len(res.entities.entities)} entities"
+        try:
+            res.entities, _ = self._entities_msg(req.include_meshes)
+            res.success, res.message = True, f"{len(res.entities.entities)} entities"
+        except (RuntimeError, ValueError) as exc:
+            res.success, res.message = False, f"entity extraction failed: {exc}"
         return res
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(MapperNode, args)
+    return run_node(MapperNode, args, threads=3)
 
 
 if __name__ == "__main__":

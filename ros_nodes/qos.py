@@ -13,3 +13,8 @@ TF_STATIC = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=R
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 TF_DYNAMIC = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+#: What our TF listener subscribes with: best effort matches reliable and best-effort publishers
+#: alike, and a reliable reader stalled here (only the first samples of a replayed /tf arrived
+#: while the image streams flowed, with no message-lost event); poses are interpolated anyway.
+TF_LISTEN = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)

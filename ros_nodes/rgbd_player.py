@@ -79,8 +79,11 @@ class RGBDPlayer(Node):
     def _tick(self) -> None:
         if self.finished or self._frames is None:
             return
+        # every stream must be matched, TF included: a mapper that gets images but missed their TF
+        # (volatile QoS) would drop every frame
+        streams = (self.pub_color, self.pub_depth, self.pub_info, self.pub_tf)
         if self._t0_wall is None and (
-            self.pub_color.get_subscription_count() < self.wait_for_subscribers
+            min(p.get_subscription_count() for p in streams) < self.wait_for_subscribers
             or self.pub_labels.get_subscription_count() < self.wait_for_label_subscribers
         ):
             if time.monotonic() - self._created < self.wait_timeout_s:

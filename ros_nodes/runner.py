@@ -12,14 +12,21 @@ from rclpy.node import Node
 from scene_recon.ros_env import ensure_ros_environment
 
 
-def run_node(factory: Callable[[], Node], args: list[str] | None = None) -> int:
-    """Create the node with `factory` and spin it; returns the process exit code."""
+def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 1) -> int:
+    """Create the node with `factory` and spin it (on `threads` executor threads); returns the exit code."""
     ensure_ros_environment()
     rclpy.init(args=args)
     signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
     node = factory()
     try:
-        rclpy.spin(node)
+        if threads > 1:
+            from rclpy.executors import MultiThreadedExecutor
+
+            executor = MultiThreadedExecutor(num_threads=threads)
+            executor.add_node(node)
+            executor.spin()
+        else:
+            rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

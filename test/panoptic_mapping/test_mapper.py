@@ -264,3 +264,14 @@ def test_memory_grows_with_observed_surface_only(tiny_scene):
     mapper.integrate(frame, None)
     assert mapper.tsdf.num_blocks > blocks
     assert mapper.tsdf.memory_bytes() == mapper.tsdf.num_blocks * 8**3 * 16
+
+
+def test_empty_map_extracts_nothing_without_error(tiny_scene):
+    mapper = _mapper()
+    assert mapper.entities() == []
+    _, renderer = tiny_scene
+    frame, gt = _frame(renderer, EYES[0], index=0)
+    mapper.integrate(frame, _gt_masks(gt))  # one frame: voxel weights stay below the mesh threshold
+    mapper.config.tsdf.mesh_weight_threshold = 1e9
+    mapper._entity_cache = None
+    assert all(len(e.faces) == 0 for e in mapper.entities())
