@@ -124,13 +124,17 @@ class PanopticMapper:
         # (N, 3) @ (3, 3) in numpy is slow for this shape; cv2.transform is a tight C loop
         world = cv2.transform(points.reshape(-1, 1, 3), frame.pose[:3, :].astype(np.float32)).reshape(-1, 3)
         segmented = bool(masks.labels.any())
-        label_of_seg, new_labels, map_labels = self._associate(segs, world, count_merges=segmented)
+        stride = max(1, cfg.association.pixel_stride)
+        sample = np.zeros(depth.shape, bool)
+        sample[::stride, ::stride] = True
+        sample = sample.ravel()
+        label_of_seg, new_labels, map_labels = self._associate(segs, world, sample, count_merges=segmented)
         t["association"] = time.perf_counter()
         if segmented:
             self._vote(segs, label_of_seg)
         seg_flat = segs.image.ravel()
         pix_labels = label_of_seg[seg_flat]
-        has = pix_labels > 0
+        has = (pix_labels > 0) & sample
         if not segmented:
             # frames without fresh masks fill unknown voxels but never fight labels the map holds
             # (a purely geometric segment may be under-segmented: floor + wall in one piece)
@@ -152,7 +156,7 @@ class PanopticMapper:
             prev = v
         return FrameStats(masks.labels.any(), segs.count, new_labels, segs.num_split, segs.num_clustered_out, timings)
 
-    def _associate(self, segs: FrameSegments, world: np.ndarray,
+    def _associate(self, segs: FrameSegments, world: np.ndarray, sample: np.ndarray,
                    count_merges: bool) -> tuple[np.ndarray, int, np.ndarray]:
         """Global segment label of each frame segment (greedy by 3D overlap, Sec. 3.2).
 
@@ -162,7 +166,7 @@ class PanopticMapper:
         n = segs.count + 1
         label_of = np.zeros(n, np.int64)
         flat = segs.image.ravel()
-        sel = flat > 0
+        sel = (flat > 0) & sample
         pixel_map_labels = np.zeros(flat.size, np.int64)
         if not np.any(sel):
             return label_of, 0, pixel_map_labels
@@ -186,7 +190,8 @@ class PanopticMapper:
                     for j in range(i + 1, len(labs)):
                         key = (labs[i], labs[j])
                         self.merge_votes[key] = self.merge_votes.get(key, 0) + 1
-        ok = (counts >= ac.min_overlap_points) & (share >= ac.min_overlap_share)
+        min_points = max(1, round(ac.min_overlap_points * float(sample.mean())))  # counts are of sampled pixels
+        ok = (counts >= min_points) & (share >= ac.min_overlap_share)
         order = np.argsort(-counts[ok], kind="stable")
         taken: set[int] = set()
         for s, lab in zip(p_seg[ok][order].tolist(), p_lab[ok][order].tolist(), strict=True):
