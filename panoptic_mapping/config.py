@@ -116,7 +116,7 @@ class KeyframeConfig:
     max_interval_s: float = 1.0
     #: Every n-th non-keyframe also segments depth and propagates the map's labels into unknown
     #: voxels (costs ~4x a geometry-only frame); the others integrate geometry only. 1 = all, 0 = none.
-    label_every_n_frames: int = 0
+    label_every_n_frames: int = 3
 
 
 @dataclass
