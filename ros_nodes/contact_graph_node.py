@@ -17,13 +17,10 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
-from urllib.parse import unquote, urlparse
 
 import numpy as np
-from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
+from geometry_msgs.msg import Point, Quaternion, Vector3
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from scene_recon_interfaces.msg import ContactGraph as ContactGraphMsg
 from scene_recon_interfaces.msg import ContactGraphNode as ContactGraphNodeMsg
 from scene_recon_interfaces.msg import OrientedBox as OrientedBoxMsg
@@ -34,6 +31,9 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from cad_replacement.cad.feature_types import Plane
+from ros_nodes.entity_conversions import mesh_from_msg, oriented_box_msg
+from ros_nodes.qos import ENTITIES as ENTITIES_QOS
+from ros_nodes.qos import LATCHED
 from ros_nodes.runner import run_node
 from scene_graph.box import GravityBox
 from scene_graph.builder import ContactGraphBuilder
@@ -57,26 +57,15 @@ CATEGORY_RGBA = {LAYOUT: (0.6, 0.6, 0.6, 0.6), RIGID: (0.12, 0.47, 0.71, 1.0),
 #: Thickness (m) of the CUBE markers drawn for supporting planes.
 PLANE_MARKER_THICKNESS = 0.005
 
-LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
-ENTITIES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE)
 
 
 # ---------------------------------------------------------------------------------------------- conversions
 def entity_from_msg(msg: PanopticEntity) -> Entity:
     """A PanopticEntity (inline mesh, or a file:// / plain-path ``mesh_uri``) as a builder entity."""
-    v = np.array([[p.x, p.y, p.z] for p in msg.mesh.vertices], np.float64).reshape(-1, 3)
-    f = np.array([t.vertex_indices for t in msg.mesh.triangles], np.int64).reshape(-1, 3)
-    if len(v) == 0 and msg.mesh_uri:
-        import trimesh
-
-        uri = urlparse(msg.mesh_uri)
-        path = Path(unquote(uri.path)) if uri.scheme in ("file", "") else None
-        if path is None or not path.is_file():
-            raise EntityError(f"entity {msg.id}: cannot read mesh_uri {msg.mesh_uri!r}")
-        geom = trimesh.load(path, process=False)
-        v = np.asarray(geom.vertices, np.float64)
-        f = np.asarray(getattr(geom, "faces", np.zeros((0, 3))), np.int64)
+    try:
+        v, f = mesh_from_msg(msg)
+    except ValueError as exc:
+        raise EntityError(str(exc)) from exc
     name = f"{msg.class_name or 'entity'}_{msg.id}"
     return Entity(int(msg.id), name, msg.class_name or "unknown", v, f, class_id=int(msg.class_id),
                   category=ENTITY_CATEGORY.get(msg.category, ""), is_thing=bool(msg.is_thing),
@@ -84,15 +73,9 @@ def entity_from_msg(msg: PanopticEntity) -> Entity:
 
 
 def box_to_msg(box: GravityBox | None) -> OrientedBoxMsg:
-    msg = OrientedBoxMsg()
-    msg.center.orientation.w = 1.0
     if box is None:
-        return msg
-    c = box.center
-    msg.center = Pose(position=Point(x=float(c[0]), y=float(c[1]), z=float(c[2])),
-                      orientation=Quaternion(z=float(np.sin(box.yaw / 2)), w=float(np.cos(box.yaw / 2))))
-    msg.size = Vector3(x=float(box.size[0]), y=float(box.size[1]), z=float(box.size[2]))
-    return msg
+        return oriented_box_msg(np.zeros(3), np.zeros(3), 0.0)
+    return oriented_box_msg(box.center, box.size, box.yaw)
 
 
 def box_from_msg(msg: OrientedBoxMsg) -> GravityBox:

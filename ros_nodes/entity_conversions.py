@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import colorsys
+from pathlib import Path
+from urllib.parse import unquote, urlparse
 
 import numpy as np
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
@@ -19,18 +21,20 @@ CATEGORY = {"layout": PanopticEntity.CATEGORY_LAYOUT, "rigid": PanopticEntity.CA
 CATEGORY_NAME = {v: k for k, v in CATEGORY.items()}
 
 
+def oriented_box_msg(center: np.ndarray, size: np.ndarray, yaw: float) -> OrientedBox:
+    """OrientedBox message of a gravity-aligned box (pure-yaw quaternion)."""
+    return OrientedBox(
+        center=Pose(position=Point(x=float(center[0]), y=float(center[1]), z=float(center[2])),
+                    orientation=Quaternion(z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2)))),
+        size=Vector3(x=float(size[0]), y=float(size[1]), z=float(size[2])))
+
+
 def box_msg(vertices: np.ndarray) -> OrientedBox:
     """Gravity-aligned box of a vertex set (empty -> zero box at the origin)."""
-    msg = OrientedBox()
     if len(vertices) == 0:
-        msg.center.orientation.w = 1.0
-        return msg
+        return oriented_box_msg(np.zeros(3), np.zeros(3), 0.0)
     box = gravity_aligned_box(vertices)
-    msg.center = Pose()
-    msg.center.position = Point(x=float(box.center[0]), y=float(box.center[1]), z=float(box.center[2]))
-    msg.center.orientation = Quaternion(z=float(np.sin(box.yaw / 2)), w=float(np.cos(box.yaw / 2)))
-    msg.size = Vector3(x=float(box.size[0]), y=float(box.size[1]), z=float(box.size[2]))
-    return msg
+    return oriented_box_msg(box.center, box.size, box.yaw)
 
 
 def mesh_msg(vertices: np.ndarray, faces: np.ndarray) -> Mesh:
@@ -52,9 +56,28 @@ def entity_to_msg(e: MappedEntity, include_mesh: bool = True, mesh_uri: str = ""
     return msg
 
 
-def msg_to_entity(msg: PanopticEntity) -> MappedEntity:
+def mesh_from_msg(msg: PanopticEntity) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) of an entity: the inline mesh, else the file behind `mesh_uri` (file:// or a path).
+
+    Raises ValueError when the reference cannot be read.
+    """
     v = np.array([[p.x, p.y, p.z] for p in msg.mesh.vertices], np.float64).reshape(-1, 3)
     f = np.array([t.vertex_indices for t in msg.mesh.triangles], np.int64).reshape(-1, 3)
+    if len(v) == 0 and msg.mesh_uri:
+        import trimesh
+
+        uri = urlparse(msg.mesh_uri)
+        path = Path(unquote(uri.path)) if uri.scheme in ("file", "") else None
+        if path is None or not path.is_file():
+            raise ValueError(f"entity {msg.id}: cannot read mesh_uri {msg.mesh_uri!r}")
+        geom = trimesh.load(path, process=False)
+        v = np.asarray(geom.vertices, np.float64)
+        f = np.asarray(getattr(geom, "faces", np.zeros((0, 3))), np.int64).reshape(-1, 3)
+    return v, f
+
+
+def msg_to_entity(msg: PanopticEntity) -> MappedEntity:
+    v, f = mesh_from_msg(msg)
     return MappedEntity(msg.id, msg.class_id, msg.class_name, msg.instance_id, msg.is_thing,
                         CATEGORY_NAME.get(msg.category, "rigid"), msg.confidence, len(v), msg.revision, v, f)
 

@@ -31,7 +31,7 @@ from panoptic_mapping.mapper import PanopticMapper
 from panoptic_mapping.pipeline import class_metas
 from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
 from ros_nodes.entity_conversions import entity_to_msg, map_markers
-from ros_nodes.qos import SENSOR_RELIABLE
+from ros_nodes.qos import ENTITIES, SENSOR_RELIABLE
 from ros_nodes.runner import run_node
 from ros_nodes.tf_listener import TFListener
 from scene_recon.config import CONFIG_DIR, ConfigError, load_config
@@ -81,7 +81,7 @@ class MapperNode(Node):
         self.create_subscription(CameraInfo, p("camera_info_topic", "/camera/color/camera_info").value,
                                  self._on_info, SENSOR_RELIABLE, callback_group=inputs)
         self.seg_client = self.create_client(SegmentImage, p("segmentation_service", "segment_image").value)
-        self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", 1)
+        self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", ENTITIES)
         self.pub_markers = self.create_publisher(MarkerArray, "panoptic_map_markers", 1)
         self.create_service(SaveMap, "save_map", self._srv_save, callback_group=self.map_group)
         self.create_service(LoadMap, "load_map", self._srv_load, callback_group=self.map_group)

@@ -12,6 +12,13 @@ SENSOR_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliabili
 TF_STATIC = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
+#: Latched outputs (the contact graph, its markers): a late subscriber gets the last one.
+LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+#: The mapper's entity snapshots: only the newest matters, but it must arrive.
+ENTITIES = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE)
+
 TF_DYNAMIC = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
 #: What our TF listener subscribes with: best effort matches reliable and best-effort publishers
