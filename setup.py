@@ -17,8 +17,11 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     description="RGB-D stream to an interactive, kinematic scene (panoptic mapping, contact graph, CAD replacement)",
-    packages=find_packages(
+    packages=[
+        *find_packages(
         include=[
+            "recon_core",
+            "recon_core.*",
             "scene_recon",
             "scene_recon.*",
             "panoptic_mapping",
@@ -30,7 +33,9 @@ setup(
             "ros_nodes",
             "ros_nodes.*",
         ]
-    ),
+        ),
+        "recon_core.default_config",
+    ],
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -38,8 +43,9 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/segmentation", glob("config/segmentation/*.yaml")),
     ],
-    package_data={"scene_recon": ["config/*.yaml"]},
-    include_package_data=True,
+    # config/ is installed as the package recon_core.default_config (found through importlib.resources)
+    package_dir={"recon_core.default_config": "config"},
+    package_data={"recon_core.default_config": ["*.yaml", "segmentation/*.yaml"]},
     install_requires=["setuptools"],
     zip_safe=False,
     python_requires=">=3.10",

@@ -22,10 +22,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import best_of, write_result
+from recon_core.entity import Entity
 from scene_graph.builder import ContactGraphBuilder, build_contact_graph
 from scene_graph.config import load_scene_graph_config
-from scene_graph.entity import Entity, entities_from_ground_truth
-from scene_recon.synthetic.scene import build_scene
+from scene_recon.synthetic.scene import build_scene, entities_from_ground_truth
 
 
 def scene_entities(count: int, seed: int) -> list[Entity]:

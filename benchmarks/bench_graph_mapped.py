@@ -35,11 +35,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.common import write_result
 from scene_graph.builder import ContactGraphBuilder, build_contact_graph
 from scene_graph.config import SceneGraphConfig, load_scene_graph_config
-from scene_graph.entity import entities_from_ground_truth
-from scene_graph.ground_truth import ground_truth_graph, seen_entity_ids
-from scene_graph.metrics import evaluate_graph
-from scene_graph.scene_io import read_entities
-from scene_recon.synthetic.scene import GroundTruthScene
+from scene_recon.evaluation.graph_ground_truth import ground_truth_graph, seen_entity_ids
+from scene_recon.evaluation.graph_metrics import evaluate_graph
+from scene_recon.sources import read_mapped
+from scene_recon.synthetic.scene import GroundTruthScene, entities_from_ground_truth
 
 SUITE = ("bench-small", "bench-kitchen", "bench-office", "bench-clutter")
 SENSITIVITY_PIXELS = (1, 10_000, 50_000)
@@ -122,7 +121,7 @@ def main() -> int:
             map_s = map_scene(bag, folder, args.noise)
         scene = GroundTruthScene.load(gt_dir)
         gt = ground_truth_graph(scene)
-        entities = read_entities(folder).entities
+        entities = read_mapped(folder).entities
         t0 = time.perf_counter()
         builder = ContactGraphBuilder(cfg)
         builder.update(entities)

@@ -70,11 +70,11 @@ def open3d_integration_s(bag: Path, frames: int, downsample: int, voxel: float) 
 def run_one(bag: Path, gt: Path, spec: dict, frames: int, out: Path) -> dict:
     from panoptic_mapping.config import MapperConfig
     from panoptic_mapping.dataio import DataInputConfig
-    from panoptic_mapping.metrics import evaluate_panoptic_map
     from panoptic_mapping.pipeline import map_recording, write_map_outputs
     from panoptic_mapping.segmentation.config import SegmentationConfig
     from panoptic_mapping.segmentation.factory import make_segmenter
-    from scene_recon.config import CONFIG_DIR, load_config
+    from recon_core.config import CONFIG_DIR, load_config
+    from scene_recon.evaluation.map_metrics import evaluate_panoptic_map
     from scene_recon.synthetic.scene import GroundTruthScene
 
     cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml", {"mode": spec["mode"],
@@ -122,7 +122,7 @@ def main() -> int:
         full = results[name].get("full/default")
         if full:
             from panoptic_mapping.config import MapperConfig
-            from scene_recon.config import CONFIG_DIR, load_config
+            from recon_core.config import CONFIG_DIR, load_config
 
             ds = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml").downsample
             o3d_proc = open3d_integration_s(bag, args.frames, ds, 0.02)

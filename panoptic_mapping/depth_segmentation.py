@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from panoptic_mapping.config import DepthSegmentationConfig
-from panoptic_mapping.dataio.frame import CameraIntrinsics
+from recon_core.frame import CameraIntrinsics
 
 _EPS = 1e-9
 

@@ -22,13 +22,13 @@ import cv2
 import numpy as np
 
 from panoptic_mapping.config import MapperConfig
-from panoptic_mapping.dataio.frame import RGBDFrame
 from panoptic_mapping.depth_segmentation import segment_depth
-from panoptic_mapping.entities import MappedEntity
 from panoptic_mapping.fusion import BACKGROUND, FrameSegments, PanopticMasks, fuse
 from panoptic_mapping.image_ops import downsample_depth, downsample_labels
 from panoptic_mapping.panoptic_counts import PanopticCounts
 from panoptic_mapping.tsdf_map import LabeledTSDF
+from recon_core.entity import Entity
+from recon_core.frame import RGBDFrame
 
 log = logging.getLogger(__name__)
 MAP_FORMAT_VERSION = 1
@@ -298,7 +298,7 @@ class PanopticMapper:
         return merged
 
     # ------------------------------------------------------------------ extraction
-    def entities(self, with_meshes: bool = True) -> list[MappedEntity]:
+    def entities(self, with_meshes: bool = True) -> list[Entity]:
         """Panoptic entities by Eq. (6), each with the mesh of its segments.
 
         Nothing is recomputed while no frame was integrated since the last call (a node publishing
@@ -311,7 +311,7 @@ class PanopticMapper:
         self._entity_cache = (key, ents)
         return list(ents)
 
-    def _extract(self, with_meshes: bool) -> list[MappedEntity]:
+    def _extract(self, with_meshes: bool) -> list[Entity]:
         self.regularize()
         counts = self.counts
         seg_class: dict[int, tuple[int, int]] = {}
@@ -336,7 +336,7 @@ class PanopticMapper:
                 continue  # seen in too few segmented frames: a spurious detection, not an object
             key = p if thing else counts.instance_for_stuff(c)
             groups.setdefault(key, []).append(label)
-        ents: list[MappedEntity] = []
+        ents: list[Entity] = []
         lut_size = counts.next_label
         entity_of_label = np.zeros(lut_size, np.int64)
         for eid, labels in groups.items():
@@ -348,13 +348,15 @@ class PanopticMapper:
             meta = self.classes.get(c, ClassMeta(f"class_{c}", True, "rigid"))
             conf = class_votes[c] / max(sum(class_votes.values()), 1)
             revision = max(counts.last_update.get(label, 0) for label in labels)
-            ents.append(MappedEntity(eid, c, meta.name, eid if meta.is_thing else 0, meta.is_thing, meta.category,
-                                     float(conf), 0, int(revision)))
+            ents.append(Entity(eid, meta.name, class_id=c, instance_id=eid if meta.is_thing else 0,
+                               is_thing=meta.is_thing, category=meta.category, confidence=float(conf),
+                               revision=int(revision)))
             entity_of_label[labels] = eid
         unknown = None
         if with_meshes and self.config.extraction.include_unknown:
             # all reconstructed surface that no entity claims: evaluation must see it as geometry
-            unknown = MappedEntity(UNKNOWN_ENTITY_ID, BACKGROUND, "unknown", 0, False, "unknown", 0.0)
+            unknown = Entity(UNKNOWN_ENTITY_ID, "unknown", class_id=BACKGROUND, is_thing=False, category="unknown",
+                             confidence=0.0)
         if with_meshes:
             self._attach_meshes(ents, entity_of_label, unknown)
         min_v = self.config.extraction.min_entity_voxels
@@ -363,8 +365,8 @@ class PanopticMapper:
             out.append(unknown)
         return out
 
-    def _attach_meshes(self, ents: list[MappedEntity], entity_of_label: np.ndarray,
-                       unknown: MappedEntity | None = None) -> None:
+    def _attach_meshes(self, ents: list[Entity], entity_of_label: np.ndarray,
+                       unknown: Entity | None = None) -> None:
         v, f, vlab = self.tsdf.extract_mesh()
         if len(f) == 0:
             return
@@ -434,7 +436,7 @@ class PanopticMapper:
 
     @classmethod
     def load(cls, folder: str | Path) -> PanopticMapper:
-        from scene_recon.config import from_dict
+        from recon_core.config import from_dict
 
         folder = Path(folder)
         meta_path, npz_path = folder / "map.json", folder / "map.npz"

@@ -14,13 +14,13 @@ from typing import Any
 
 import numpy as np
 
-from cad_replacement.cad.classes import ClassTable, load_class_table
 from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.dataio import DataInputConfig
 from panoptic_mapping.dataio.registry import open_dataset
-from panoptic_mapping.entities import MappedEntity, save_entities
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
 from panoptic_mapping.mapper import ClassMeta, PanopticMapper
+from recon_core.classes import ClassTable, load_class_table
+from recon_core.entity import Entity, save_entities
 
 
 def class_metas(table: ClassTable | None = None) -> dict[int, ClassMeta]:
@@ -116,9 +116,9 @@ def map_recording(
     return mapper, run
 
 
-def write_map_outputs(out: str | Path, mapper: PanopticMapper, run: MappingRun, picture: bool = True,
-                      extra: dict[str, Any] | None = None) -> tuple[list[MappedEntity], dict[str, Any]]:
-    """entities.json + meshes, map.npz/map.json (resumable), summary.json, panoptic_map.png."""
+def write_map_outputs(out: str | Path, mapper: PanopticMapper, run: MappingRun,
+                      extra: dict[str, Any] | None = None) -> tuple[list[Entity], dict[str, Any]]:
+    """entities.json + meshes, map.npz/map.json (resumable), summary.json (pictures: the tool layer)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -136,19 +136,4 @@ def write_map_outputs(out: str | Path, mapper: PanopticMapper, run: MappingRun, 
         "global_segments": mapper.counts.next_label - 1, **(extra or {}),
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=1), encoding="utf-8")
-    if picture and ents:
-        render_map_picture(ents, run.poses, out / "panoptic_map.png")
     return ents, summary
-
-
-def render_map_picture(ents: list[MappedEntity], poses: list[np.ndarray], path: Path) -> None:
-    """Bird's-eye picture of the panoptic map: each entity in its own colour, camera path drawn."""
-    from scene_recon.synthetic.items import RenderItem
-    from scene_recon.synthetic.overview import render_overview
-
-    # the unclaimed surface (entity 0, "unknown") gets a label of its own: labels must be > 0
-    spare = max((int(e.id) for e in ents), default=0) + 1
-    items = [RenderItem(mesh=e.mesh(), label=int(e.id) if e.id > 0 else spare, name=f"{e.class_name}")
-             for e in ents if len(e.faces)]
-    if items:
-        render_overview(items, np.array(poses) if poses else None, path)

@@ -30,19 +30,18 @@ from shape_msgs.msg import Plane as PlaneMsg
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from cad_replacement.cad.feature_types import Plane
+from recon_core.contact_graph import SCENE, ContactGraph, GraphNode, SupportEdge
+from recon_core.entity import Entity, EntityError
+from recon_core.geometry.box import GravityBox
+from recon_core.geometry.plane import Plane, SurfacePlane
 from ros_nodes.entity_conversions import mesh_from_msg, oriented_box_msg
 from ros_nodes.qos import ENTITIES as ENTITIES_QOS
 from ros_nodes.qos import LATCHED
 from ros_nodes.runner import run_node
-from scene_graph.box import GravityBox
 from scene_graph.builder import ContactGraphBuilder
-from scene_graph.classify import ARTICULATED, LAYOUT, RIGID, SCENE
+from scene_graph.classify import ARTICULATED, LAYOUT, RIGID
 from scene_graph.config import load_scene_graph_config
-from scene_graph.entity import Entity, EntityError
-from scene_graph.graph import ContactGraph, GraphNode, SupportEdge
 from scene_graph.joints import load_support_joints
-from scene_graph.planes import SurfacePlane
 
 NODE_TYPE = {SCENE: ContactGraphNodeMsg.TYPE_SCENE, LAYOUT: ContactGraphNodeMsg.TYPE_LAYOUT,
              RIGID: ContactGraphNodeMsg.TYPE_RIGID, ARTICULATED: ContactGraphNodeMsg.TYPE_ARTICULATED}

@@ -12,9 +12,9 @@ from geometry_msgs.msg import Quaternion, Transform, TransformStamped, Vector3
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
-from panoptic_mapping.dataio.frame import CameraIntrinsics, DatasetError, sanitize_depth
 from panoptic_mapping.dataio.image_codec import decode_color, decode_depth, encode_color, encode_depth
 from panoptic_mapping.dataio.transforms import make_transform, matrix_to_quat
+from recon_core.frame import CameraIntrinsics, DatasetError, sanitize_depth
 
 
 def stamp_to_ns(stamp: Time) -> int:

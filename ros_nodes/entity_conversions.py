@@ -1,4 +1,4 @@
-"""PanopticEntity messages <-> the core's MappedEntity, plus RViz markers of the panoptic map."""
+"""PanopticEntity messages <-> the core's Entity, plus RViz markers of the panoptic map."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from cad_replacement.cad.features import gravity_aligned_box
-from panoptic_mapping.entities import MappedEntity
+from recon_core.entity import Entity
+from recon_core.geometry.box_fit import fit_gravity_box
 
 CATEGORY = {"layout": PanopticEntity.CATEGORY_LAYOUT, "rigid": PanopticEntity.CATEGORY_RIGID,
             "articulated": PanopticEntity.CATEGORY_ARTICULATED}
@@ -33,7 +33,7 @@ def box_msg(vertices: np.ndarray) -> OrientedBox:
     """Gravity-aligned box of a vertex set (empty -> zero box at the origin)."""
     if len(vertices) == 0:
         return oriented_box_msg(np.zeros(3), np.zeros(3), 0.0)
-    box = gravity_aligned_box(vertices)
+    box = fit_gravity_box(vertices)
     return oriented_box_msg(box.center, box.size, box.yaw)
 
 
@@ -45,7 +45,7 @@ def mesh_msg(vertices: np.ndarray, faces: np.ndarray) -> Mesh:
                 vertices=[Point(x=float(x), y=float(y), z=float(z)) for x, y, z in v])
 
 
-def entity_to_msg(e: MappedEntity, include_mesh: bool = True, mesh_uri: str = "") -> PanopticEntity:
+def entity_to_msg(e: Entity, include_mesh: bool = True, mesh_uri: str = "") -> PanopticEntity:
     msg = PanopticEntity(id=int(e.id), class_id=int(e.class_id), class_name=e.class_name,
                          instance_id=int(e.instance_id), is_thing=bool(e.is_thing),
                          category=CATEGORY.get(e.category, PanopticEntity.CATEGORY_UNKNOWN),
@@ -76,10 +76,11 @@ def mesh_from_msg(msg: PanopticEntity) -> tuple[np.ndarray, np.ndarray]:
     return v, f
 
 
-def msg_to_entity(msg: PanopticEntity) -> MappedEntity:
+def msg_to_entity(msg: PanopticEntity) -> Entity:
     v, f = mesh_from_msg(msg)
-    return MappedEntity(msg.id, msg.class_id, msg.class_name, msg.instance_id, msg.is_thing,
-                        CATEGORY_NAME.get(msg.category, "rigid"), msg.confidence, len(v), msg.revision, v, f)
+    return Entity(msg.id, msg.class_name, v, f, class_id=msg.class_id, instance_id=msg.instance_id,
+                  is_thing=msg.is_thing, category=CATEGORY_NAME.get(msg.category, "rigid"),
+                  confidence=msg.confidence, revision=msg.revision, num_voxels=len(v))
 
 
 def entity_color(entity_id: int) -> ColorRGBA:
@@ -88,7 +89,7 @@ def entity_color(entity_id: int) -> ColorRGBA:
     return ColorRGBA(r=r, g=g, b=b, a=1.0)
 
 
-def map_markers(entities: list[MappedEntity], frame_id: str, stamp) -> MarkerArray:
+def map_markers(entities: list[Entity], frame_id: str, stamp) -> MarkerArray:
     """One TRIANGLE_LIST per entity (coloured by entity) and a text label above it."""
     out = MarkerArray()
     out.markers.append(Marker(action=Marker.DELETEALL))

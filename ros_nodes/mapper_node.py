@@ -24,17 +24,17 @@ from sensor_msgs.msg import CameraInfo, Image
 from visualization_msgs.msg import MarkerArray
 
 from panoptic_mapping.config import MapperConfig
-from panoptic_mapping.dataio.frame import DatasetError, RGBDFrame
 from panoptic_mapping.dataio.transforms import TransformLookupError
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
 from panoptic_mapping.mapper import PanopticMapper
 from panoptic_mapping.pipeline import class_metas
+from recon_core.config import CONFIG_DIR, ConfigError, load_config
+from recon_core.frame import DatasetError, RGBDFrame
 from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
 from ros_nodes.entity_conversions import entity_to_msg, map_markers
 from ros_nodes.qos import ENTITIES, SENSOR_RELIABLE
 from ros_nodes.runner import run_node
 from ros_nodes.tf_listener import TFListener
-from scene_recon.config import CONFIG_DIR, ConfigError, load_config
 
 
 @dataclass
@@ -258,7 +258,7 @@ class MapperNode(Node):
 
     # ------------------------------------------------------------------ services
     def _srv_save(self, req: SaveMap.Request, res: SaveMap.Response) -> SaveMap.Response:
-        from panoptic_mapping.entities import save_entities
+        from recon_core.entity import save_entities
 
         try:
             self.mapper.save(req.path)

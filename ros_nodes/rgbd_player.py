@@ -18,6 +18,7 @@ from tf2_msgs.msg import TFMessage
 
 from panoptic_mapping.dataio import DataInputConfig, DatasetError
 from panoptic_mapping.dataio.registry import open_dataset
+from recon_core.ros_env import ensure_ros_environment
 from ros_nodes.conversions import (
     depth_to_image,
     intrinsics_to_camera_info,
@@ -26,7 +27,6 @@ from ros_nodes.conversions import (
     rgb_to_image,
 )
 from ros_nodes.qos import SENSOR_RELIABLE, TF_DYNAMIC
-from scene_recon.ros_env import ensure_ros_environment
 
 
 class RGBDPlayer(Node):

@@ -39,7 +39,6 @@ from scene_recon_interfaces.msg import SegmentInfo
 from scene_recon_interfaces.srv import SegmentImage
 from sensor_msgs.msg import Image, RegionOfInterest
 
-from panoptic_mapping.dataio.frame import DatasetError
 from panoptic_mapping.segmentation import (
     OracleSegmenter,
     PanopticSegmentation,
@@ -48,10 +47,11 @@ from panoptic_mapping.segmentation import (
     make_segmenter,
 )
 from panoptic_mapping.segmentation.config import DEFAULT_SEGMENTATION_YAML
+from recon_core.config import ConfigError
+from recon_core.frame import DatasetError
+from recon_core.ros_env import ensure_ros_environment
 from ros_nodes.conversions import image_to_depth, image_to_labels, image_to_rgb, labels_to_image, stamp_to_ns
 from ros_nodes.qos import SENSOR_RELIABLE
-from scene_recon.config import ConfigError
-from scene_recon.ros_env import ensure_ros_environment
 
 NODE_NAME = "segmentation_service"
 DEFAULT_LABELS_TOPIC = "/ground_truth/panoptic_labels"

@@ -2,12 +2,8 @@
 
 Public API
 ----------
-Input (``entity``, ``scene_io``):
-    Entity(id, name, class_name, vertices, faces=(), class_id=-1, category="", is_thing=True,
-           confidence=1.0, revision=0)            map frame, z up; id 0 is reserved for the root
-    entities_from_ground_truth(GroundTruthScene) -> [Entity]      complete meshes (cg_map setting)
-    load_source(path) -> EntitySource             ground-truth folder (scene.json) or mapped-scene
-    write_entities(folder, entities) / read_entities(folder)      folder (entities.json + meshes/<id>.ply)
+Input: ``recon_core.entity.Entity`` (map frame, z up; id 0 is reserved for the root), read from a
+    mapped-scene folder with ``recon_core.entity.load_entities``.
 
 Building (``builder``; config ``config/scene_graph.yaml`` -> ``SceneGraphConfig``):
     build_contact_graph(entities, cfg=None, joints=None, name="", frame_id="map") -> ContactGraph
@@ -22,26 +18,22 @@ Building (``builder``; config ``config/scene_graph.yaml`` -> ``SceneGraphConfig`
     The mapped-input steps are deviations from the paper (config/scene_graph.yaml says which);
     ground-truth meshes pass them unchanged.
 
-Graph (``graph``): ContactGraph(nodes, supports, proximal) with GraphNode (box refined and
+Graph (``recon_core.contact_graph``): ContactGraph(nodes, supports, proximal) with GraphNode (box refined and
     unrefined, planes) and SupportEdge (plane, score, joint); .validate(), .format_tree(),
     .save(path) / ContactGraph.load(path) (JSON), .parents(), .children(id), .walk().
-Ground truth (``ground_truth``): ground_truth_graph(scene), restrict_graph(graph, keep_ids).
 Kinematic tree (``kinematic``, ``joints``): to_kinematic_tree(graph, entities_by_id) -> KinematicTree
     (URDF via .to_urdf); SupportJointTable from ``config/support_joints.yaml`` decides fixed/floating.
-Metrics (``metrics``): match_nodes (objects: IoU / containment; layout: class + containment of the
-    observed part), graph_edit_distance (Table 5 + exact tree edit distance), box_map (Table 4,
-    exact yaw-box IoU), evaluate_graph(pred, gt, seen=None) (with ``seen``: also the figures
-    restricted to what the recording saw, ground_truth.seen_entity_ids / restrict_to_seen).
-Evaluation helpers: observed.observed_entities (what a recording saw), evaluation (python -m
-    scene_graph.evaluation), draw.draw_graph (PNG).
+Picture: draw.draw_graph (PNG). Evaluation against ground truth lives in the tool layer
+    (``scene_recon.evaluation``: graph metrics, GED, box mAP, observed entities).
 """
 
-from .box import GravityBox
-from .builder import ContactGraphBuilder, build_contact_graph
-from .config import SceneGraphConfig, load_scene_graph_config
-from .entity import Entity, EntityError, entities_from_ground_truth
-from .graph import ROOT_ID, ContactGraph, GraphError, GraphNode, SupportEdge
-from .kinematic import to_kinematic_tree
+from recon_core.contact_graph import ROOT_ID, ContactGraph, GraphError, GraphNode, SupportEdge
+from recon_core.entity import Entity
+from recon_core.errors import EntityError
+from recon_core.geometry.box import GravityBox
+from scene_graph.builder import ContactGraphBuilder, build_contact_graph
+from scene_graph.config import SceneGraphConfig, load_scene_graph_config
+from scene_graph.kinematic import to_kinematic_tree
 
 __all__ = [
     "ROOT_ID",
@@ -55,7 +47,6 @@ __all__ = [
     "SceneGraphConfig",
     "SupportEdge",
     "build_contact_graph",
-    "entities_from_ground_truth",
     "load_scene_graph_config",
     "to_kinematic_tree",
 ]

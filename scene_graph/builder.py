@@ -20,20 +20,20 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .blas import single_blas_thread
-from .broadphase import candidate_pairs
-from .classify import LAYOUT, classify
-from .config import SceneGraphConfig, load_scene_graph_config
-from .entity import Entity, EntityError
-from .features import NodeFeatures, compute_features
-from .fragments import drop_fragments
-from .graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
-from .joints import SupportJointTable, load_support_joints
-from .layout import split_layout
-from .merge import fragment_hosts, merged_entity
-from .proximal import proximal_relations
-from .refine import refine_box
-from .support import SupportInference
+from recon_core.contact_graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
+from recon_core.entity import Entity, EntityError
+from scene_graph.blas import single_blas_thread
+from scene_graph.broadphase import candidate_pairs
+from scene_graph.classify import LAYOUT, classify
+from scene_graph.config import SceneGraphConfig, load_scene_graph_config
+from scene_graph.features import NodeFeatures, compute_features
+from scene_graph.fragments import drop_fragments
+from scene_graph.joints import SupportJointTable, load_support_joints
+from scene_graph.layout import split_layout
+from scene_graph.merge import fragment_hosts, merged_entity
+from scene_graph.proximal import proximal_relations
+from scene_graph.refine import refine_box
+from scene_graph.support import SupportInference
 
 log = logging.getLogger(__name__)
 

@@ -11,13 +11,11 @@ import logging
 from dataclasses import dataclass
 from functools import lru_cache
 
-from cad_replacement.cad.classes import CATEGORIES, ClassTable, load_class_table
+from recon_core.classes import CATEGORIES, ClassTable, load_class_table
 
 log = logging.getLogger(__name__)
 
 LAYOUT, RIGID, ARTICULATED = "layout", "rigid", "articulated"
-#: Category of the root node (not a class-table category).
-SCENE = "scene"
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from scene_recon.config import CONFIG_DIR, ConfigError, load_config
+from recon_core.config import CONFIG_DIR, ConfigError, load_config
 
 #: Default YAML file of the contact-graph builder.
 DEFAULT_CONFIG_FILE = CONFIG_DIR / "scene_graph.yaml"

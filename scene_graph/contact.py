@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .box import GravityBox
-from .polygon import EPS
+from recon_core.geometry.box import GravityBox
+from recon_core.geometry.polygon import EPS
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .classify import ARTICULATED, LAYOUT, RIGID
-from .graph import ContactGraph
+from recon_core.contact_graph import ContactGraph
+from scene_graph.classify import ARTICULATED, LAYOUT, RIGID
 
 COLORS = {LAYOUT: "#9e9e9e", RIGID: "#1f77b4", ARTICULATED: "#ff7f0e"}
 

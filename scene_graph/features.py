@@ -11,12 +11,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from .box import GravityBox
-from .box_fit import fit_gravity_box
-from .classify import NodeClass, classify
-from .config import SceneGraphConfig
-from .entity import Entity, EntityError
-from .planes import SurfacePlane, detect_planes
+from recon_core.entity import Entity, EntityError
+from recon_core.geometry.box import GravityBox
+from recon_core.geometry.box_fit import fit_gravity_box
+from scene_graph.classify import NodeClass, classify
+from scene_graph.config import SceneGraphConfig
+from scene_graph.planes import SurfacePlane, detect_planes
 
 
 @dataclass(eq=False)

@@ -27,9 +27,9 @@ from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from .config import FragmentConfig
-from .entity import Entity
-from .layout import sub_entity
+from recon_core.entity import Entity
+from scene_graph.config import FragmentConfig
+from scene_graph.layout import sub_entity
 
 log = logging.getLogger(__name__)
 

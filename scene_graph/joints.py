@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from scene_recon.config import CONFIG_DIR, ConfigError, load_config
+from recon_core.config import CONFIG_DIR, ConfigError, load_config
 
 DEFAULT_JOINTS_FILE = CONFIG_DIR / "support_joints.yaml"
 SUPPORT_JOINTS = ("fixed", "floating")

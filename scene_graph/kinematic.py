@@ -14,11 +14,10 @@ from collections.abc import Mapping
 import numpy as np
 import trimesh
 
-from cad_replacement.kinematic_tree import KinematicTree, TreeJoint, TreeLink
-
-from .classify import LAYOUT
-from .entity import Entity
-from .graph import ContactGraph
+from recon_core.contact_graph import ContactGraph
+from recon_core.entity import Entity
+from recon_core.kinematic_tree import KinematicTree, TreeJoint, TreeLink
+from scene_graph.classify import LAYOUT
 
 
 def link_pose(graph: ContactGraph, node_id: int) -> np.ndarray:

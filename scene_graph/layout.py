@@ -36,9 +36,9 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
-from .config import LayoutConfig
-from .entity import Entity
-from .polygon import EPS
+from recon_core.entity import Entity
+from recon_core.geometry.polygon import EPS
+from scene_graph.config import LayoutConfig
 
 log = logging.getLogger(__name__)
 

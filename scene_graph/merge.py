@@ -22,11 +22,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from .box import GravityBox
-from .classify import LAYOUT
-from .config import MergeConfig
-from .entity import Entity
-from .features import NodeFeatures
+from recon_core.entity import Entity
+from recon_core.geometry.box import GravityBox
+from scene_graph.classify import LAYOUT
+from scene_graph.config import MergeConfig
+from scene_graph.features import NodeFeatures
 
 
 def _padded(box: GravityBox, min_extent: float) -> GravityBox:

@@ -15,75 +15,16 @@ it (or the points, for point input), projected to the floor plane, which Eq. (2)
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from cad_replacement.cad.feature_types import Plane
-from cad_replacement.cad.features import extract_planes
-
-from .config import PlaneConfig
-from .entity import Entity
-from .polygon import EPS
-
-#: Gravity direction g of Eq. (1) in the map frame (z up).
-GRAVITY = np.array([0.0, 0.0, -1.0])
-
-#: Sources of a plane: RANSAC, a height group of upward faces, or inferred (an invisible
-#: supporting plane registered from a child's bottom, Sec. 2.2).
-SOURCES = ("ransac", "height_group", "inferred")
-
-
-@dataclass(eq=False)
-class SurfacePlane:
-    """A plane n . x + d = 0 (outward unit n) of a node, with its supporting region if horizontal.
-
-    ``region_triangles`` (F, 3, 2): the node's triangles on the plane, in map x-y; ``region_points``
-    (N, 2): the same for point input. Both empty for non-supporting planes and inferred planes
-    (an inferred plane's region is its owner's box footprint, set by the support step).
-    """
-
-    plane: Plane
-    source: str = "ransac"
-    region_triangles: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3, 2)))
-    region_points: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
-
-    _bounds: tuple[NDArray[np.float64], NDArray[np.float64]] | None = field(default=None, repr=False)
-
-    def region_bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Per-triangle x-y bounds (F, 2) lo/hi of the region, computed once (Eq. (2) runs per child)."""
-        if self._bounds is None or len(self._bounds[0]) != len(self.region_triangles):
-            self._bounds = (self.region_triangles.min(axis=1), self.region_triangles.max(axis=1))
-        return self._bounds
-
-    @property
-    def normal(self) -> NDArray[np.float64]:
-        return self.plane.normal
-
-    @property
-    def d(self) -> float:
-        return self.plane.d
-
-    def is_support(self, a_th: float) -> bool:
-        """Eq. (1), first condition: n . g <= a_th (horizontal, facing against gravity)."""
-        return bool(self.plane.normal @ GRAVITY <= a_th)
-
-    def height_at(self, xy: NDArray[np.float64]) -> float:
-        """z of the plane above map point ``xy`` (guarded: vertical planes have no height)."""
-        n = self.plane.normal
-        if abs(n[2]) < EPS:
-            return float("nan")
-        return float(-(self.plane.d + n[0] * xy[0] + n[1] * xy[1]) / n[2])
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"normal": self.plane.normal.tolist(), "d": self.plane.d, "area": self.plane.area,
-                "source": self.source}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> SurfacePlane:
-        return cls(Plane(normal=d["normal"], d=d["d"], area=d.get("area", 0.0)), d.get("source", "ransac"))
+from recon_core.entity import Entity
+from recon_core.geometry.plane import Plane, SurfacePlane
+from recon_core.geometry.plane_fit import extract_planes
+from recon_core.geometry.polygon import EPS
+from scene_graph.config import PlaneConfig
 
 
 def _face_data(entity: Entity) -> tuple[NDArray, NDArray, NDArray]:

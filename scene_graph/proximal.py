@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .box import GravityBox
-from .broadphase import candidate_pairs
-from .config import ProximalConfig
-from .polygon import rectangle, rectangles_overlap
+from recon_core.geometry.box import GravityBox
+from recon_core.geometry.polygon import rectangle, rectangles_overlap
+from scene_graph.broadphase import candidate_pairs
+from scene_graph.config import ProximalConfig
 
 
 @dataclass

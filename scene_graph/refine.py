@@ -8,9 +8,9 @@ centre and the top stays, completing the unseen lower part. A plane further away
 
 from __future__ import annotations
 
-from .box import GravityBox
-from .config import RefineConfig
-from .support import SupportDecision
+from recon_core.geometry.box import GravityBox
+from scene_graph.config import RefineConfig
+from scene_graph.support import SupportDecision
 
 
 def refine_box(box: GravityBox, decision: SupportDecision | None, cfg: RefineConfig) -> GravityBox:

@@ -23,14 +23,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cad_replacement.cad.feature_types import Plane
-
-from .box import GravityBox
-from .classify import LAYOUT
-from .config import SupportConfig
-from .contact import claimed_ratios, footprint_grid, points_cover, triangles_cover
-from .features import NodeFeatures
-from .planes import SurfacePlane
-from .polygon import EPS, polygon_distance
+from recon_core.geometry.box import GravityBox
+from recon_core.geometry.polygon import EPS, polygon_distance
+from scene_graph.classify import LAYOUT
+from scene_graph.config import SupportConfig
+from scene_graph.contact import claimed_ratios, footprint_grid, points_cover, triangles_cover
+from scene_graph.features import NodeFeatures
+from scene_graph.planes import SurfacePlane
 
 log = logging.getLogger(__name__)
 

@@ -26,16 +26,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from scene_recon.ros_env import ensure_ros_environment
+    from recon_core.ros_env import ensure_ros_environment
 
     ensure_ros_environment()
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else logging.DEBUG
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-    from panoptic_mapping.dataio.frame import DatasetError
     from panoptic_mapping.segmentation.types import SegmentationError
-    from scene_recon.config import ConfigError
+    from recon_core.config import ConfigError
+    from recon_core.frame import DatasetError
 
     try:
         return int(args.func(args) or 0)

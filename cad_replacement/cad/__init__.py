@@ -37,69 +37,37 @@ External models (``urdf_import``, ``urdf_export``):
                 mesh_format="stl", mesh_uri_prefix="", name_prefix="") -> str
     write_urdf(model, out_dir, ...) -> Path
 
-Features (``features``), reusable on reconstructed meshes:
-    extract_planes(mesh_or_points, *, normals=None, distance_threshold=0.03, iterations=200,
-                   min_inlier_fraction=0.1, ...) -> [Plane]
-    find_support_surfaces(mesh, ...) -> [SupportSurface]; gravity_aligned_box(points) -> OrientedBox
+Features (``features``):
+    find_support_surfaces(mesh, ...) -> [SupportSurface]
     mesh_features(mesh) / model_mesh_features(model) -> ModelFeatures
-
-Class table (``classes``, file ``config/classes.yaml``):
-    load_class_table(path=None) -> ClassTable  (.by_name, .by_id, .from_coco, .get_by_coco)
-    ClassInfo(id, name, category, is_thing, movable, density, coco_names, confusable_with)
-    UNKNOWN_CLASS_ID = -1
+    (planes and their RANSAC detector are shared geometry: ``recon_core.geometry.plane(_fit)``;
+    the class table is ``recon_core.classes``)
 """
 
-from .classes import (
-    UNKNOWN_CLASS_ID,
-    ClassInfo,
-    ClassTable,
-    ClassTableError,
-    UnknownClassError,
-    load_class_table,
-)
-from .feature_types import ModelFeatures, Plane, SupportSurface
-from .features import (
-    OrientedBox,
-    extract_planes,
-    find_support_surfaces,
-    gravity_aligned_box,
-    mesh_features,
-    model_mesh_features,
-)
-from .library import CacheStats, CadEntry, CadLibrary
-from .model import CadModel, Joint, Link
-from .procedural import CLASS_BUILDERS, ClassBuilder, UnknownCadClassError, build_model
-from .urdf_export import export_urdf, write_urdf
-from .urdf_import import CadImportError, ImportMeta, import_urdf_model
+from cad_replacement.cad.feature_types import ModelFeatures, SupportSurface
+from cad_replacement.cad.features import find_support_surfaces, mesh_features, model_mesh_features
+from cad_replacement.cad.library import CacheStats, CadEntry, CadLibrary
+from cad_replacement.cad.model import CadModel, Joint, Link
+from cad_replacement.cad.procedural import CLASS_BUILDERS, ClassBuilder, build_model
+from cad_replacement.cad.urdf_export import export_urdf, write_urdf
+from cad_replacement.cad.urdf_import import ImportMeta, import_urdf_model
 
 __all__ = [
     "CLASS_BUILDERS",
-    "UNKNOWN_CLASS_ID",
     "CacheStats",
     "CadEntry",
-    "CadImportError",
     "CadLibrary",
     "CadModel",
     "ClassBuilder",
-    "ClassInfo",
-    "ClassTable",
-    "ClassTableError",
     "ImportMeta",
     "Joint",
     "Link",
     "ModelFeatures",
-    "OrientedBox",
-    "Plane",
     "SupportSurface",
-    "UnknownCadClassError",
-    "UnknownClassError",
     "build_model",
     "export_urdf",
-    "extract_planes",
     "find_support_surfaces",
-    "gravity_aligned_box",
     "import_urdf_model",
-    "load_class_table",
     "mesh_features",
     "model_mesh_features",
     "write_urdf",

@@ -21,9 +21,9 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
-from .feature_types import ModelFeatures, Plane, SupportSurface, merge_planes
-from .model import CadModel, Joint, JointType, Link, ParamValue
-from .transforms import translation
+from cad_replacement.cad.feature_types import ModelFeatures, Plane, SupportSurface, merge_planes
+from cad_replacement.cad.model import CadModel, Joint, JointType, Link, ParamValue
+from recon_core.geometry.transforms import translation
 
 #: Segments of every procedural cylinder; a multiple of 4 puts vertices on the +-x/+-y extremes,
 #: so mesh bounding boxes equal the analytic ones.

@@ -12,9 +12,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .assembly import Assembly, LinkBuilder, rectangle
-from .params import Choice, IntRange, ParamSpec, ParamValue, Uniform
-from .shapes import (
+from cad_replacement.cad.assembly import Assembly, LinkBuilder, rectangle
+from cad_replacement.cad.params import Choice, IntRange, ParamSpec, ParamValue, Uniform
+from cad_replacement.cad.shapes import (
     DARK,
     FRONT_GAP,
     FUSE,

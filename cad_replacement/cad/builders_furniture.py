@@ -12,9 +12,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .assembly import Assembly, circle, rectangle
-from .params import Choice, IntRange, ParamSpec, ParamValue, Uniform
-from .shapes import FABRIC, FUSE, LIGHT_WOOD, WHITE, WOOD, Cavity, legs, shelf_levels
+from cad_replacement.cad.assembly import Assembly, circle, rectangle
+from cad_replacement.cad.params import Choice, IntRange, ParamSpec, ParamValue, Uniform
+from cad_replacement.cad.shapes import FABRIC, FUSE, LIGHT_WOOD, WHITE, WOOD, Cavity, legs, shelf_levels
 
 Params = dict[str, ParamValue]
 

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from .assembly import Assembly, LinkBuilder, rectangle
-from .params import Choice, ParamSpec, ParamValue, Uniform
-from .shapes import DARK, FABRIC, FUSE, GLASS, LIGHT_WOOD, WHITE
+from cad_replacement.cad.assembly import Assembly, LinkBuilder, rectangle
+from cad_replacement.cad.params import Choice, ParamSpec, ParamValue, Uniform
+from cad_replacement.cad.shapes import DARK, FABRIC, FUSE, GLASS, LIGHT_WOOD, WHITE
 
 Params = dict[str, ParamValue]
 

@@ -9,97 +9,16 @@ in the model's canonical frame (z up, front +x, origin at the bottom centre of t
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .transforms import EPS_NORM
-
-#: A plane whose unit normal has ``n . up`` above this is horizontal and facing up (paper: 0.9).
-SUPPORT_NORMAL_COS = 0.9
-#: Up direction of the canonical frame.
-UP = np.array([0.0, 0.0, 1.0])
-
-
-def _vec(value: ArrayLike, size: int, what: str) -> NDArray[np.float64]:
-    arr = np.array(value, dtype=np.float64).reshape(size)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{what} must be finite, got {arr.tolist()}")
-    arr.setflags(write=False)
-    return arr
-
-
-@dataclass(frozen=True, eq=False)
-class Plane:
-    """Plane ``normal . x + d = 0`` with a unit, outward-pointing normal.
-
-    ``area`` is the (approximate) surface area that lies on the plane; the matching stage uses it
-    to weight planes. ``support`` marks upward horizontal planes that can carry other objects.
-    """
-
-    normal: NDArray[np.float64]
-    d: float
-    area: float = 0.0
-
-    def __post_init__(self) -> None:
-        n = _vec(self.normal, 3, "plane normal")
-        length = float(np.linalg.norm(n))
-        if length < EPS_NORM:
-            raise ValueError("plane normal must be non-zero")
-        n = n / length
-        n.setflags(write=False)
-        object.__setattr__(self, "normal", n)
-        object.__setattr__(self, "d", float(self.d) / length)
-        object.__setattr__(self, "area", float(self.area))
-
-    @property
-    def support(self) -> bool:
-        """Whether the plane is horizontal and faces up (a potential supporting plane)."""
-        return bool(self.normal @ UP > SUPPORT_NORMAL_COS)
-
-    def signed_distance(self, points: ArrayLike) -> NDArray[np.float64]:
-        """Signed distance of (N, 3) points, positive on the outward side."""
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        return p @ self.normal + self.d
-
-    def as_vector(self) -> NDArray[np.float64]:
-        """Homogeneous ``[n, d]`` 4-vector (paper notation)."""
-        return np.append(self.normal, self.d)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"normal": self.normal.tolist(), "d": self.d, "area": self.area}
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> Plane:
-        return cls(normal=data["normal"], d=data["d"], area=data.get("area", 0.0))
-
-
-def polygon_area(polygon: ArrayLike) -> float:
-    """Signed-area-free (absolute) area of a simple 2D polygon (shoelace)."""
-    p = np.asarray(polygon, dtype=np.float64).reshape(-1, 2)
-    if len(p) < 3:
-        return 0.0
-    x, y = p[:, 0], p[:, 1]
-    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
-
-
-def points_in_polygon(points: ArrayLike, polygon: ArrayLike) -> NDArray[np.bool_]:
-    """Even-odd rule point-in-polygon test, vectorised over points and edges."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    poly = np.asarray(polygon, dtype=np.float64).reshape(-1, 2)
-    a = poly[None, :, :]
-    b = np.roll(poly, -1, axis=0)[None, :, :]
-    px = pts[:, None, 0]
-    py = pts[:, None, 1]
-    straddles = (a[..., 1] > py) != (b[..., 1] > py)
-    dy = b[..., 1] - a[..., 1]
-    safe_dy = np.where(np.abs(dy) < EPS_NORM, 1.0, dy)
-    x_cross = a[..., 0] + (py - a[..., 1]) * (b[..., 0] - a[..., 0]) / safe_dy
-    crossings = straddles & (px < x_cross)
-    return (np.count_nonzero(crossings, axis=1) % 2) == 1
+from recon_core.geometry.gravity import UP
+from recon_core.geometry.plane import SUPPORT_NORMAL_COS, Plane, finite_vector, merge_planes
+from recon_core.geometry.polygon import points_in_polygon, polygon_area
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,7 +68,7 @@ class SupportSurface:
         return points_in_polygon(xy, self.polygon)
 
     def scaled(self, factors: ArrayLike) -> SupportSurface:
-        s = _vec(factors, 3, "scale factors")
+        s = finite_vector(factors, 3, "scale factors")
         return SupportSurface(
             height=self.height * s[2],
             polygon=self.polygon * s[:2],
@@ -193,8 +112,8 @@ class ModelFeatures:
     support_surfaces: tuple[SupportSurface, ...] = field(default_factory=tuple)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "box_center", _vec(self.box_center, 3, "box centre"))
-        size = _vec(self.box_size, 3, "box size")
+        object.__setattr__(self, "box_center", finite_vector(self.box_center, 3, "box centre"))
+        size = finite_vector(self.box_size, 3, "box size")
         if np.any(size < 0.0):
             raise ValueError(f"box size must be non-negative, got {size.tolist()}")
         object.__setattr__(self, "box_size", size)
@@ -249,20 +168,6 @@ class ModelFeatures:
             planes=tuple(Plane.from_dict(p) for p in data.get("planes", ())),
             support_surfaces=tuple(SupportSurface.from_dict(s) for s in data.get("support_surfaces", ())),
         )
-
-
-def merge_planes(planes: Sequence[Plane], normal_cos: float = 0.999, offset_tol: float = 1e-3) -> list[Plane]:
-    """Merge near-identical planes (same outward normal, same offset), keeping the larger area."""
-    kept: list[Plane] = []
-    for p in planes:
-        for i, q in enumerate(kept):
-            if float(p.normal @ q.normal) > normal_cos and abs(p.d - q.d) < offset_tol:
-                if p.area > q.area:
-                    kept[i] = p
-                break
-        else:
-            kept.append(p)
-    return kept
 
 
 __all__ = [

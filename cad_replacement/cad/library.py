@@ -25,12 +25,25 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from .classes import ClassTable
-from .feature_types import ModelFeatures
-from .model import CadModel
-from .names import sanitize_name
-from .procedural import CLASS_BUILDERS, build_model, definition_digest, procedural_definition, procedural_model_id
-from .urdf_import import MESH_SUFFIXES, META_FILE, CadImportError, find_urdf, import_urdf_model, load_meta
+from cad_replacement.cad.feature_types import ModelFeatures
+from cad_replacement.cad.model import CadModel
+from cad_replacement.cad.procedural import (
+    CLASS_BUILDERS,
+    build_model,
+    definition_digest,
+    procedural_definition,
+    procedural_model_id,
+)
+from cad_replacement.cad.urdf_import import (
+    MESH_SUFFIXES,
+    META_FILE,
+    CadImportError,
+    find_urdf,
+    import_urdf_model,
+    load_meta,
+)
+from recon_core.classes import ClassTable
+from recon_core.names import sanitize_name
 
 _log = logging.getLogger(__name__)
 

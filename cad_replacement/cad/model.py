@@ -24,8 +24,8 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
-from .feature_types import ModelFeatures
-from .transforms import invert_rigid, is_rigid, rotation_about, translation, unit
+from cad_replacement.cad.feature_types import ModelFeatures
+from recon_core.geometry.transforms import invert_rigid, is_rigid, rotation_about, translation, unit
 
 JointType = Literal["revolute", "prismatic", "fixed"]
 JOINT_TYPES: tuple[str, ...] = ("revolute", "prismatic", "fixed")

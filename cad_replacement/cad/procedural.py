@@ -18,10 +18,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from . import builders_articulated, builders_furniture, builders_objects
-from .assembly import Assembly
-from .model import CadModel, ParamValue
-from .params import ParamSpec, sample_params
+from cad_replacement.cad import builders_articulated, builders_furniture, builders_objects
+from cad_replacement.cad.assembly import Assembly
+from cad_replacement.cad.model import CadModel, ParamValue
+from cad_replacement.cad.params import ParamSpec, sample_params
+from recon_core.errors import UnknownClassError
 
 #: Bump when any builder's geometry or parameter table changes: it invalidates cached features.
 PROCEDURAL_VERSION = "1"
@@ -53,18 +54,11 @@ def _registry() -> Mapping[str, ClassBuilder]:
 CLASS_BUILDERS: Mapping[str, ClassBuilder] = _registry()
 
 
-class UnknownCadClassError(KeyError):
-    """No procedural builder exists for the requested class."""
-
-    def __str__(self) -> str:  # KeyError would quote the whole message
-        return str(self.args[0]) if self.args else ""
-
-
 def class_builder(class_name: str) -> ClassBuilder:
     try:
         return CLASS_BUILDERS[class_name]
     except KeyError:
-        raise UnknownCadClassError(
+        raise UnknownClassError(
             f"no procedural CAD class {class_name!r}; supported: {sorted(CLASS_BUILDERS)}"
         ) from None
 

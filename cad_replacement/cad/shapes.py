@@ -14,7 +14,7 @@ from typing import Literal
 
 import numpy as np
 
-from .assembly import Assembly, LinkBuilder, rectangle
+from cad_replacement.cad.assembly import Assembly, LinkBuilder, rectangle
 
 RGBA = tuple[float, float, float, float]
 

@@ -35,11 +35,12 @@ import yaml
 import yourdfpy
 from lxml import etree
 
-from .feature_types import ModelFeatures
-from .features import model_mesh_features
-from .model import CadModel, Joint, Link, bounding_box_features
-from .names import sanitize_name, unique_names
-from .transforms import is_rigid, rotation_from_axes, translation
+from cad_replacement.cad.feature_types import ModelFeatures
+from cad_replacement.cad.features import model_mesh_features
+from cad_replacement.cad.model import CadModel, Joint, Link, bounding_box_features
+from recon_core.errors import CadImportError
+from recon_core.geometry.transforms import is_rigid, rotation_from_axes, translation
+from recon_core.names import sanitize_name, unique_names
 
 #: Largest URDF file accepted (bytes); PartNet files are a few kB.
 MAX_URDF_BYTES = 20 * 1024 * 1024
@@ -57,10 +58,6 @@ _AXES = {
     "-z": (0.0, 0.0, -1.0),
 }
 _META_KEYS = {"class", "model_id", "up_axis", "front_axis", "scale"}
-
-
-class CadImportError(Exception):
-    """An external CAD model could not be imported; the message names the file and the reason."""
 
 
 @dataclass(frozen=True)

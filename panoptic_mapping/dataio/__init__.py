@@ -1,6 +1,6 @@
 """RGB-D data input: one frame type, loaders picked by path, bag writing, TF and image codecs."""
 
-from .config import DataInputConfig, TopicConfig
-from .frame import CameraIntrinsics, DatasetError, RGBDFrame, sanitize_depth
+from panoptic_mapping.dataio.config import DataInputConfig, TopicConfig
+from recon_core.frame import CameraIntrinsics, DatasetError, RGBDFrame, sanitize_depth
 
 __all__ = ["CameraIntrinsics", "DataInputConfig", "DatasetError", "RGBDFrame", "TopicConfig", "sanitize_depth"]

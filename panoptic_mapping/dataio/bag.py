@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import DataInputConfig
-from .frame import CameraIntrinsics, DatasetError, RGBDFrame, sanitize_depth
-from .image_codec import decode_color, decode_depth
-from .transforms import TransformBuffer, TransformLookupError
+from panoptic_mapping.dataio.config import DataInputConfig
+from panoptic_mapping.dataio.image_codec import decode_color, decode_depth
+from panoptic_mapping.dataio.transforms import TransformBuffer, TransformLookupError
+from recon_core.frame import CameraIntrinsics, DatasetError, RGBDFrame, sanitize_depth
 
 log = logging.getLogger(__name__)
 
@@ -378,7 +378,7 @@ class RosbagLoader:
 
 def decode_labels(msg) -> np.ndarray:
     """Label image (32SC1, 16UC1 or mono16) -> (H, W) int32."""
-    from .image_codec import _rows
+    from panoptic_mapping.dataio.image_codec import _rows
 
     dtypes = {"32SC1": "i4", "16UC1": "u2", "mono16": "u2", "32UC1": "u4"}
     if msg.encoding not in dtypes:

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .frame import CameraIntrinsics
-from .image_codec import encode_color, encode_depth
-from .transforms import invert_transform, matrix_to_quat
+from panoptic_mapping.dataio.image_codec import encode_color, encode_depth
+from panoptic_mapping.dataio.transforms import invert_transform, matrix_to_quat
+from recon_core.frame import CameraIntrinsics
 
 #: Rotation from a ROS body frame (x forward, y left, z up) to its optical frame (z forward, x right, y down).
 T_LINK_OPTICAL = np.array(

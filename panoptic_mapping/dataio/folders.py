@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .config import DataInputConfig
-from .frame import CameraIntrinsics, DatasetError, RGBDFrame, sanitize_depth
-from .transforms import make_transform, slerp
+from panoptic_mapping.dataio.config import DataInputConfig
+from panoptic_mapping.dataio.transforms import make_transform, slerp
+from recon_core.frame import CameraIntrinsics, DatasetError, RGBDFrame, sanitize_depth
 
 log = logging.getLogger(__name__)
 

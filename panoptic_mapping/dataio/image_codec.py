@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .frame import DatasetError
+from recon_core.frame import DatasetError
 
 #: Color encodings accepted and their (channels, order) after decoding to RGB.
 COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8")

@@ -7,12 +7,12 @@ from typing import Any
 
 import numpy as np
 
-from .bag import IMAGE_TYPE, INFO_TYPE, RosbagLoader
-from .config import DataInputConfig
-from .folders import _read_image
-from .frame import DatasetError
-from .registry import detect_format, open_dataset
-from .transforms import TransformLookupError
+from panoptic_mapping.dataio.bag import IMAGE_TYPE, INFO_TYPE, RosbagLoader
+from panoptic_mapping.dataio.config import DataInputConfig
+from panoptic_mapping.dataio.folders import _read_image
+from panoptic_mapping.dataio.registry import detect_format, open_dataset
+from panoptic_mapping.dataio.transforms import TransformLookupError
+from recon_core.frame import DatasetError
 
 
 def _rate(times_ns: list[int]) -> float:

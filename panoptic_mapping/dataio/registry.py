@@ -6,10 +6,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .bag import RosbagLoader, is_bag
-from .config import DataInputConfig
-from .folders import SevenScenesLoader, TumLoader, is_seven_scenes, is_tum
-from .frame import DatasetError
+from panoptic_mapping.dataio.bag import RosbagLoader, is_bag
+from panoptic_mapping.dataio.config import DataInputConfig
+from panoptic_mapping.dataio.folders import SevenScenesLoader, TumLoader, is_seven_scenes, is_tum
+from recon_core.frame import DatasetError
 
 #: (name, detector, loader class), tried in order.
 LOADERS: list[tuple[str, Callable[[Path], bool], type]] = [

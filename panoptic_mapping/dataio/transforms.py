@@ -13,11 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from recon_core.errors import TransformLookupError
+
 _EPS = 1e-12
-
-
-class TransformLookupError(LookupError):
-    """No transform chain connects two frames at the requested time."""
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:

@@ -8,8 +8,8 @@ Backends: `onnx` (an exported model the user brings, three output conventions), 
 truth of generated scenes through a network-like noise model), `none` (no segments).
 """
 
-from .base import PanopticSegmenter
-from .config import (
+from panoptic_mapping.segmentation.base import PanopticSegmenter
+from panoptic_mapping.segmentation.config import (
     BACKENDS,
     OnnxConfig,
     OracleConfig,
@@ -18,13 +18,19 @@ from .config import (
     SegmentationConfig,
     load_segmentation_config,
 )
-from .factory import make_segmenter
-from .model_config import OnnxModelConfig, load_model_config
-from .none_backend import NoneSegmenter
-from .onnx_backend import OnnxSegmenter, OnnxTiming
-from .oracle import EntityClass, OracleSegmenter
-from .panoptic import assemble
-from .types import MaskCrop, PanopticSegmentation, Segment, SegmentationError, SegmentCandidate
+from panoptic_mapping.segmentation.factory import make_segmenter
+from panoptic_mapping.segmentation.model_config import OnnxModelConfig, load_model_config
+from panoptic_mapping.segmentation.none_backend import NoneSegmenter
+from panoptic_mapping.segmentation.onnx_backend import OnnxSegmenter, OnnxTiming
+from panoptic_mapping.segmentation.oracle import EntityClass, OracleSegmenter
+from panoptic_mapping.segmentation.panoptic import assemble
+from panoptic_mapping.segmentation.types import (
+    MaskCrop,
+    PanopticSegmentation,
+    Segment,
+    SegmentationError,
+    SegmentCandidate,
+)
 
 __all__ = [
     "BACKENDS",

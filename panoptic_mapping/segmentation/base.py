@@ -7,9 +7,8 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
-from panoptic_mapping.dataio.frame import RGBDFrame
-
-from .types import PanopticSegmentation, SegmentationError
+from panoptic_mapping.segmentation.types import PanopticSegmentation, SegmentationError
+from recon_core.frame import RGBDFrame
 
 
 class PanopticSegmenter(ABC):

@@ -12,9 +12,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from cad_replacement.cad.classes import UNKNOWN_CLASS_ID, ClassInfo, ClassTable
-
-from .types import SegmentationError
+from panoptic_mapping.segmentation.types import SegmentationError
+from recon_core.classes import UNKNOWN_CLASS_ID, ClassInfo, ClassTable
 
 #: The 80 COCO thing classes in the order of their contiguous training ids (YOLO, torchvision, ...).
 COCO_THING_NAMES: tuple[str, ...] = (

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from scene_recon.config import CONFIG_DIR, ConfigError, load_config
+from recon_core.config import CONFIG_DIR, ConfigError, load_config
 
 #: Backend names accepted by `make_segmenter` (and the ROS parameter `backend`).
 BACKENDS: tuple[str, ...] = ("onnx", "oracle", "none")
@@ -190,15 +190,16 @@ def load_segmentation_config(
 
 def resolve_path(path: str | Path, base: Path | None = None) -> Path:
     """Find a configured file: absolute as is; relative to `base` (default: the working directory),
-    then to the repository root (so `config/segmentation/x.yaml` works from anywhere in a checkout)."""
+    then to the installed default configuration (so `config/segmentation/x.yaml` works from anywhere)."""
     p = Path(path).expanduser()
     if p.is_absolute():
         return p
     first = (base or Path.cwd()) / p
     if first.exists():
         return first
-    repo = CONFIG_DIR.parent / p
-    return repo if repo.exists() else first
+    parts = p.parts[1:] if p.parts and p.parts[0] == "config" else p.parts
+    installed = CONFIG_DIR.joinpath(*parts) if parts else CONFIG_DIR
+    return installed if installed.exists() else first
 
 
 def _check_fraction(obj: Any, name: str) -> None:

@@ -6,10 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .class_map import ModelClassMap
-from .letterbox import Letterbox
-from .model_config import OnnxModelConfig
-from .types import SegmentationError
+from panoptic_mapping.segmentation.class_map import ModelClassMap
+from panoptic_mapping.segmentation.letterbox import Letterbox
+from panoptic_mapping.segmentation.model_config import OnnxModelConfig
+from panoptic_mapping.segmentation.types import SegmentationError
 
 
 @dataclass

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .decode_common import DecodeContext, cxcywh_to_xyxy, squeeze_batch
-from .depth_mask import depth_mask_in_box
-from .letterbox import box_pixels
-from .nms import nms
-from .types import SegmentationError, SegmentCandidate
+from panoptic_mapping.segmentation.decode_common import DecodeContext, cxcywh_to_xyxy, squeeze_batch
+from panoptic_mapping.segmentation.depth_mask import depth_mask_in_box
+from panoptic_mapping.segmentation.letterbox import box_pixels
+from panoptic_mapping.segmentation.nms import nms
+from panoptic_mapping.segmentation.types import SegmentationError, SegmentCandidate
 
 
 def decode_detection(

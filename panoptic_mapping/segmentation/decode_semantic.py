@@ -14,8 +14,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from .decode_common import DecodeContext, squeeze_batch
-from .types import MaskCrop, SegmentationError, SegmentCandidate
+from panoptic_mapping.segmentation.decode_common import DecodeContext, squeeze_batch
+from panoptic_mapping.segmentation.types import MaskCrop, SegmentationError, SegmentCandidate
 
 _CONNECTIVITY = 8
 

@@ -14,10 +14,10 @@ import math
 import cv2
 import numpy as np
 
-from .decode_common import DecodeContext, cxcywh_to_xyxy, squeeze_batch
-from .letterbox import box_pixels, logit
-from .nms import nms
-from .types import MaskCrop, SegmentationError, SegmentCandidate
+from panoptic_mapping.segmentation.decode_common import DecodeContext, cxcywh_to_xyxy, squeeze_batch
+from panoptic_mapping.segmentation.letterbox import box_pixels, logit
+from panoptic_mapping.segmentation.nms import nms
+from panoptic_mapping.segmentation.types import MaskCrop, SegmentationError, SegmentCandidate
 
 
 def decode_yolo_seg(predictions: np.ndarray, prototypes: np.ndarray, ctx: DecodeContext) -> list[SegmentCandidate]:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .model_config import DepthMaskConfig
-from .types import MaskCrop
+from panoptic_mapping.segmentation.model_config import DepthMaskConfig
+from panoptic_mapping.segmentation.types import MaskCrop
 
 #: Connectivity of the depth-band components (8: thin diagonal parts stay attached).
 _CONNECTIVITY = 8

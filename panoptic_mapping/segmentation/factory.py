@@ -5,16 +5,17 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from cad_replacement.cad.classes import ClassTable
-
-from .base import PanopticSegmenter
-from .config import BACKENDS, SegmentationConfig, resolve_path
-from .none_backend import NoneSegmenter
-from .types import SegmentationError
+from panoptic_mapping.segmentation.base import PanopticSegmenter
+from panoptic_mapping.segmentation.config import BACKENDS, SegmentationConfig, resolve_path
+from panoptic_mapping.segmentation.none_backend import NoneSegmenter
+from panoptic_mapping.segmentation.types import SegmentationError
+from recon_core.classes import ClassTable
 
 
 def _make_onnx(config: SegmentationConfig, ground_truth: Any, table: ClassTable | None) -> PanopticSegmenter:
-    from .onnx_backend import OnnxSegmenter  # onnxruntime is imported only when a model is used
+    from panoptic_mapping.segmentation.onnx_backend import (
+        OnnxSegmenter,  # onnxruntime is imported only when a model is used
+    )
 
     path = resolve_path(config.onnx.model_config)
     if not path.is_file():
@@ -23,7 +24,7 @@ def _make_onnx(config: SegmentationConfig, ground_truth: Any, table: ClassTable 
 
 
 def _make_oracle(config: SegmentationConfig, ground_truth: Any, table: ClassTable | None) -> PanopticSegmenter:
-    from .oracle import OracleSegmenter
+    from panoptic_mapping.segmentation.oracle import OracleSegmenter
 
     source = ground_truth if ground_truth is not None else config.oracle.ground_truth
     if not source:

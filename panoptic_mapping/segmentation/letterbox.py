@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .model_config import PreprocessConfig
-from .types import SegmentationError
+from panoptic_mapping.segmentation.model_config import PreprocessConfig
+from panoptic_mapping.segmentation.types import SegmentationError
 
 
 @dataclass(frozen=True)

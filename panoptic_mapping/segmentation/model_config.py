@@ -16,9 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from scene_recon.config import ConfigError, load_config
-
-from .config import PAPER_SCORE_THRESHOLD, PaintConfig, resolve_path
+from panoptic_mapping.segmentation.config import PAPER_SCORE_THRESHOLD, PaintConfig, resolve_path
+from recon_core.config import ConfigError, load_config
 
 CONVENTIONS: tuple[str, ...] = ("yolo_seg", "detection", "semantic")
 COLOR_ORDERS: tuple[str, ...] = ("RGB", "BGR")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .types import MaskCrop
+from panoptic_mapping.segmentation.types import MaskCrop
 
 
 def _disk(radius: int) -> np.ndarray:

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from panoptic_mapping.dataio.frame import RGBDFrame
-
-from .base import PanopticSegmenter
-from .types import PanopticSegmentation
+from panoptic_mapping.segmentation.base import PanopticSegmenter
+from panoptic_mapping.segmentation.types import PanopticSegmentation
+from recon_core.frame import RGBDFrame
 
 
 class NoneSegmenter(PanopticSegmenter):

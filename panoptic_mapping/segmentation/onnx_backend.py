@@ -13,19 +13,18 @@ from typing import Any
 
 import numpy as np
 
-from cad_replacement.cad.classes import ClassTable, load_class_table
-from panoptic_mapping.dataio.frame import RGBDFrame
-
-from .base import PanopticSegmenter
-from .class_map import ModelClassMap, resolve_class_names
-from .decode_common import DecodeContext
-from .decode_detection import decode_detection
-from .decode_semantic import decode_semantic
-from .decode_yolo import decode_yolo_seg
-from .letterbox import Letterbox, input_size, make_input
-from .model_config import OnnxModelConfig, load_model_config
-from .panoptic import assemble
-from .types import PanopticSegmentation, SegmentationError, SegmentCandidate
+from panoptic_mapping.segmentation.base import PanopticSegmenter
+from panoptic_mapping.segmentation.class_map import ModelClassMap, resolve_class_names
+from panoptic_mapping.segmentation.decode_common import DecodeContext
+from panoptic_mapping.segmentation.decode_detection import decode_detection
+from panoptic_mapping.segmentation.decode_semantic import decode_semantic
+from panoptic_mapping.segmentation.decode_yolo import decode_yolo_seg
+from panoptic_mapping.segmentation.letterbox import Letterbox, input_size, make_input
+from panoptic_mapping.segmentation.model_config import OnnxModelConfig, load_model_config
+from panoptic_mapping.segmentation.panoptic import assemble
+from panoptic_mapping.segmentation.types import PanopticSegmentation, SegmentationError, SegmentCandidate
+from recon_core.classes import ClassTable, load_class_table
+from recon_core.frame import RGBDFrame
 
 #: Only the CPU provider: these machines have no GPU, and results must not depend on one.
 PROVIDERS = ("CPUExecutionProvider",)

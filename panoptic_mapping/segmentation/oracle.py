@@ -13,6 +13,7 @@ of which other frames were segmented.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -22,14 +23,19 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import ndimage
 
-from cad_replacement.cad.classes import ClassInfo, ClassTable, load_class_table
-from panoptic_mapping.dataio.frame import RGBDFrame
-
-from .base import PanopticSegmenter
-from .config import OracleConfig, OracleNoiseConfig, PaintConfig
-from .noise import bleed_onto_background, erode_or_dilate, random_blob, split_along_line, touching_pairs
-from .panoptic import assemble
-from .types import MaskCrop, PanopticSegmentation, SegmentationError, SegmentCandidate
+from panoptic_mapping.segmentation.base import PanopticSegmenter
+from panoptic_mapping.segmentation.config import OracleConfig, OracleNoiseConfig, PaintConfig
+from panoptic_mapping.segmentation.noise import (
+    bleed_onto_background,
+    erode_or_dilate,
+    random_blob,
+    split_along_line,
+    touching_pairs,
+)
+from panoptic_mapping.segmentation.panoptic import assemble
+from panoptic_mapping.segmentation.types import MaskCrop, PanopticSegmentation, SegmentationError, SegmentCandidate
+from recon_core.classes import ClassInfo, ClassTable, load_class_table
+from recon_core.frame import RGBDFrame
 
 #: SeedSequence entropy must be non-negative: frame keys (indices or stamps) are folded into 64 bits.
 _KEY_MASK = (1 << 64) - 1
@@ -82,14 +88,15 @@ class OracleSegmenter(PanopticSegmenter):
     def from_ground_truth(
         cls, ground_truth: Any, config: OracleConfig | None = None, class_table: ClassTable | None = None
     ) -> OracleSegmenter:
-        """From a `GroundTruthScene`, its saved folder (scene.json), or the generated bag beside it."""
+        """From a ground-truth folder (scene.json), the generated bag beside it, or any object with
+        ``.entities`` carrying ``id, class_name, class_id, is_thing``."""
         cfg = config or OracleConfig()
-        scene = ground_truth
         if isinstance(ground_truth, (str, Path)):
-            scene = load_ground_truth(ground_truth)
-        if not hasattr(scene, "entities"):
-            raise SegmentationError(f"expected a GroundTruthScene or a folder, got {type(ground_truth).__name__}")
-        entities = {e.id: EntityClass(e.class_name, e.class_id, e.is_thing) for e in scene.entities}
+            entities = load_ground_truth(ground_truth)
+        elif hasattr(ground_truth, "entities"):
+            entities = {e.id: EntityClass(e.class_name, e.class_id, e.is_thing) for e in ground_truth.entities}
+        else:
+            raise SegmentationError(f"expected a ground-truth folder or scene, got {type(ground_truth).__name__}")
         return cls(entities, cfg.noise(), cfg.seed, class_table)
 
     def _segment(
@@ -249,16 +256,25 @@ class OracleSegmenter(PanopticSegmenter):
         )
 
 
-def load_ground_truth(path: str | Path) -> Any:
-    """GroundTruthScene from its folder, its scene.json, or the generated bag folder beside it."""
-    from scene_recon.synthetic.generate import ground_truth_path
-    from scene_recon.synthetic.scene import GroundTruthScene
+def load_ground_truth(path: str | Path) -> dict[int, EntityClass]:
+    """Entity id -> class of a recording's ground truth, read from its ``scene.json`` as plain data.
 
+    ``path`` is the ground-truth folder, its scene.json, or the recorded bag beside it
+    (``<bag>_groundtruth/``). Only the annotation is read: the label images themselves come with the
+    recording (its labels topic), so the oracle never needs the simulator.
+    """
     p = Path(path)
-    candidates = [p, ground_truth_path(p)] if p.is_dir() or p.suffix in ("", ".mcap", ".db3") else [p]
+    base = p.parent if p.is_file() and p.suffix in (".mcap", ".db3") else p
+    candidates = [p, base.with_name(base.name + "_groundtruth")]
     for c in candidates:
-        if (c / "scene.json").is_file() or (c.is_file() and c.name == "scene.json"):
-            return GroundTruthScene.load(c)
+        f = c if c.is_file() and c.name == "scene.json" else c / "scene.json"
+        if f.is_file():
+            try:
+                data = json.loads(f.read_text(encoding="utf-8"))
+                return {int(d["id"]): EntityClass(d["class_name"], int(d["class_id"]), bool(d["is_thing"]))
+                        for d in data["entities"]}
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                raise SegmentationError(f"{f}: cannot read the ground-truth annotation: {exc}") from exc
     raise SegmentationError(
         f"no ground truth at {p}: expected a folder with scene.json (`scene-recon generate` writes it as "
         "<bag>_groundtruth/), or the generated bag folder beside it"

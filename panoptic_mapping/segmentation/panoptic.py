@@ -11,8 +11,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .config import PaintConfig
-from .types import MaskCrop, PanopticSegmentation, Segment, SegmentCandidate
+from panoptic_mapping.segmentation.config import PaintConfig
+from panoptic_mapping.segmentation.types import MaskCrop, PanopticSegmentation, Segment, SegmentCandidate
 
 
 def merge_stuff(candidates: Sequence[SegmentCandidate]) -> list[SegmentCandidate]:

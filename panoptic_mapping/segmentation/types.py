@@ -12,11 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cad_replacement.cad.classes import ClassInfo
-
-
-class SegmentationError(RuntimeError):
-    """A segmenter cannot do what was asked (bad input, missing model, unknown backend, ...)."""
+from recon_core.classes import ClassInfo
+from recon_core.errors import SegmentationError
 
 
 @dataclass(frozen=True)

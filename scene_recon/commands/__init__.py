@@ -1,6 +1,6 @@
 """Subcommands of `scene-recon`; each module has `add_parser(subparsers)` and sets `func`."""
 
-from . import (
+from scene_recon.commands import (
     demo_cmd,
     eval_graph_cmd,
     eval_map_cmd,

@@ -8,7 +8,7 @@ import sys
 from typing import Any
 
 from panoptic_mapping.dataio import DataInputConfig
-from scene_recon.config import CONFIG_DIR, load_config
+from recon_core.config import CONFIG_DIR, load_config
 
 
 def add_data_options(p: argparse.ArgumentParser) -> None:

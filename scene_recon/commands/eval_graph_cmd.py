@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from .common import print_json
+from scene_recon.commands.common import print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -43,10 +43,10 @@ def _print(result: dict, indent: str = "") -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from recon_core.contact_graph import ContactGraph, GraphError
     from scene_graph.config import load_scene_graph_config
-    from scene_graph.graph import ContactGraph, GraphError
-    from scene_graph.ground_truth import ground_truth_graph, seen_entity_ids
-    from scene_graph.metrics import evaluate_graph
+    from scene_recon.evaluation.graph_ground_truth import ground_truth_graph, seen_entity_ids
+    from scene_recon.evaluation.graph_metrics import evaluate_graph
     from scene_recon.synthetic.scene import GroundTruthScene
 
     cfg = load_scene_graph_config(args.config)

@@ -7,9 +7,8 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
-from panoptic_mapping.metrics import PAPER_CLASSES, MetricsConfig, PanopticMetrics, evaluate_panoptic_map
-
-from .common import print_json
+from scene_recon.commands.common import print_json
+from scene_recon.evaluation.map_metrics import PAPER_CLASSES, MetricsConfig, PanopticMetrics, evaluate_panoptic_map
 
 #: Protocol options of the command line: (flag, MetricsConfig field, type, help).
 _PROTOCOL_OPTIONS = (
@@ -70,7 +69,7 @@ def resolve_classes(names: list[str] | None) -> tuple[str, ...] | None:
     """Class names to evaluate ('paper' expands to the paper's 10); unknown names are an error."""
     if not names:
         return None
-    from cad_replacement.cad.classes import load_class_table
+    from recon_core.classes import load_class_table
 
     expanded = [c for n in names for c in (PAPER_CLASSES if n == "paper" else (n,))]
     known = {c.name for c in load_class_table()}
@@ -81,7 +80,7 @@ def resolve_classes(names: list[str] | None) -> tuple[str, ...] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from panoptic_mapping.entities import load_entities
+    from recon_core.entity import load_entities
     from scene_recon.synthetic.scene import GroundTruthScene
 
     map_dir = Path(args.map)

@@ -7,7 +7,7 @@ import re
 import time
 from pathlib import Path
 
-from .common import print_json
+from scene_recon.commands.common import print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -34,23 +34,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from recon_core.errors import InputError
     from scene_graph.builder import ContactGraphBuilder
     from scene_graph.config import load_scene_graph_config
     from scene_graph.joints import load_support_joints
-    from scene_graph.scene_io import SourceError, load_source
+    from scene_recon.sources import load_source
 
     cfg = load_scene_graph_config(args.config)
     joints = load_support_joints(args.joints or cfg.support_joints or None)
     try:
         source = load_source(args.source)
-    except SourceError as exc:
+    except InputError as exc:
         raise FileNotFoundError(str(exc)) from exc
     entities = source.entities
     observed = None
     if args.observed:
         if source.kind != "ground_truth":
             raise FileNotFoundError("--observed needs a ground-truth source (scene.json)")
-        from scene_graph.observed import ObservationConfig, camera_views, observed_entities
+        from scene_recon.evaluation.observed import ObservationConfig, camera_views, observed_entities
         from scene_recon.synthetic.scene import GroundTruthScene
 
         scene = GroundTruthScene.load(source.path)

@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 
 from panoptic_mapping.dataio.inspect import inspect_dataset
-
-from .common import add_data_options, data_config_from_args, print_json
+from scene_recon.commands.common import add_data_options, data_config_from_args, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import add_data_options, data_config_from_args, print_json
+from scene_recon.commands.common import add_data_options, data_config_from_args, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -57,7 +57,7 @@ def build_segmenter(args: argparse.Namespace):
 
 def mapper_config_from_args(args: argparse.Namespace):
     from panoptic_mapping.config import MapperConfig
-    from scene_recon.config import CONFIG_DIR, load_config
+    from recon_core.config import CONFIG_DIR, load_config
 
     overrides = {"mode": args.mode}
     if args.voxel_size:
@@ -71,6 +71,7 @@ def mapper_config_from_args(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     from panoptic_mapping.mapper import PanopticMapper
     from panoptic_mapping.pipeline import map_recording, write_map_outputs
+    from scene_recon.synthetic.overview import render_map_picture
 
     data_cfg = data_config_from_args(args)
     if args.segmenter == "oracle":
@@ -82,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
     ents, summary = write_map_outputs(args.out, mapper, run_stats,
                                       extra={"segmenter": args.segmenter, "noise": args.noise,
                                              "source": str(args.source)})
+    picture = Path(args.out) / "panoptic_map.png"
+    wrote_picture = render_map_picture(ents, run_stats.poses, picture)
     if args.json:
         print_json(summary)
         return 0
@@ -94,5 +97,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"{'id':>5s} {'class':12s} {'instance':>8s} {'conf':>5s} {'vertices':>8s}")
     for e in sorted(ents, key=lambda e: (e.class_name, e.id)):
         print(f"{e.id:5d} {e.class_name:12s} {e.instance_id:8d} {e.confidence:5.2f} {len(e.vertices):8d}")
-    print(f"wrote {args.out}/entities.json, meshes/, map.npz, summary.json, panoptic_map.png")
+    extra = ", panoptic_map.png" if wrote_picture else ""
+    print(f"wrote {args.out}/entities.json, meshes/, map.npz, summary.json{extra}")
     return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from .common import print_json
+from scene_recon.commands.common import print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from panoptic_mapping.dataio.frame import CameraIntrinsics
+from recon_core.frame import CameraIntrinsics
 
 #: Below this norm a vector has no usable direction.
 EPS = 1e-12

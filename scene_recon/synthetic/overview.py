@@ -19,7 +19,8 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from panoptic_mapping.dataio.frame import CameraIntrinsics
+from recon_core.entity import Entity
+from recon_core.frame import CameraIntrinsics
 from scene_recon.synthetic.geometry import look_at_pose, normalize, pixel_rays, project
 from scene_recon.synthetic.items import RenderItem, label_colors
 from scene_recon.synthetic.renderer import RaycastRenderer, RayHits, RenderConfig
@@ -269,3 +270,15 @@ def render_overview(
         if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
             raise OSError(f"could not write overview image {path}")
     return image
+
+
+def render_map_picture(ents: list[Entity], poses: list[np.ndarray], path: Path) -> bool:
+    """Bird's-eye picture of the panoptic map: each entity in its own colour, camera path drawn."""
+    # the unclaimed surface (entity 0, "unknown") gets a label of its own: labels must be > 0
+    spare = max((int(e.id) for e in ents), default=0) + 1
+    items = [RenderItem(mesh=e.mesh(), label=int(e.id) if e.id > 0 else spare, name=f"{e.class_name}")
+             for e in ents if len(e.faces)]
+    if not items:
+        return False
+    render_overview(items, np.array(poses) if poses else None, path)
+    return True

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from panoptic_mapping.dataio.frame import CameraIntrinsics
+from recon_core.frame import CameraIntrinsics
 from scene_recon.synthetic.geometry import EPS, normalize, pixel_rays, transform_vectors
 from scene_recon.synthetic.items import PATTERNS, RenderItem
 

@@ -18,47 +18,16 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from cad_replacement.cad.classes import load_class_table
 from cad_replacement.cad.procedural import build_model
-from cad_replacement.kinematic_tree import KinematicTree, TreeJoint, TreeLink
+from recon_core.classes import load_class_table
+from recon_core.entity import Entity
+from recon_core.geometry.box import GravityBox
+from recon_core.kinematic_tree import KinematicTree, TreeJoint, TreeLink
 from scene_recon.synthetic.items import Appearance, RenderItem
 from scene_recon.synthetic.layout import LayoutConfig, RoomLayout
 
 SCENE_FORMAT_VERSION = 1
 ROOT = "scene"
-
-
-@dataclass
-class OrientedBox:
-    """Gravity-aligned box: centre (map), size along its own x/y/z, yaw about map z."""
-
-    center: np.ndarray
-    size: np.ndarray
-    yaw: float
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"center": self.center.tolist(), "size": self.size.tolist(), "yaw": float(self.yaw)}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> OrientedBox:
-        return cls(np.asarray(d["center"], float), np.asarray(d["size"], float), float(d["yaw"]))
-
-    @classmethod
-    def of_mesh(cls, mesh: trimesh.Trimesh, yaw: float) -> OrientedBox:
-        """Tight box of `mesh` in the frame rotated by `yaw` about z."""
-        c, s = np.cos(yaw), np.sin(yaw)
-        v = np.asarray(mesh.vertices, np.float64)
-        local = np.c_[c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], v[:, 2]]
-        lo, hi = local.min(0), local.max(0)
-        mid = (lo + hi) / 2
-        center = np.array([c * mid[0] - s * mid[1], s * mid[0] + c * mid[1], mid[2]])
-        return cls(center, hi - lo, float(yaw))
-
-    def corners_xy(self) -> np.ndarray:
-        c, s = np.cos(self.yaw), np.sin(self.yaw)
-        hx, hy = self.size[:2] / 2
-        local = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])
-        return local @ np.array([[c, s], [-s, c]]) + self.center[:2]
 
 
 @dataclass
@@ -75,7 +44,7 @@ class SceneEntity:
     parent_link: str = ""
     joint_values: dict[str, float] = field(default_factory=dict)
     model_seed: int | None = None
-    box: OrientedBox | None = None
+    box: GravityBox | None = None
     mesh: trimesh.Trimesh | None = None
     visible_pixels: int = 0
 
@@ -188,7 +157,7 @@ class GroundTruthScene:
             entities.append(SceneEntity(
                 d["id"], d["name"], d["class_name"], d["class_id"], d["category"], d["is_thing"], d["movable"],
                 np.asarray(d["pose"], float), d["parent"], d.get("parent_link", ""), d.get("joint_values", {}),
-                d.get("model_seed"), OrientedBox.from_dict(d["box"]) if d.get("box") else None, mesh,
+                d.get("model_seed"), GravityBox.from_dict(d["box"]) if d.get("box") else None, mesh,
                 d.get("visible_pixels", 0)))
         return cls(data["name"], data["seed"], tuple(data["room_size"]), entities,
                    [tuple(p) for p in data.get("proximal_edges", [])])
@@ -231,7 +200,22 @@ def build_scene(num_objects: int, seed: int, name: str = "scene", layout: Layout
             id=i, name=p.name, class_name=p.class_name, class_id=info.id, category=info.category,
             is_thing=info.is_thing, movable=info.movable, pose=p.pose, parent=p.parent, parent_link=p.parent_link,
             joint_values=dict(p.joint_values), model_seed=p.seed if p.model is not None else None,
-            box=OrientedBox.of_mesh(mesh, yaw), mesh=mesh))
+            box=GravityBox.of_points(mesh.vertices, yaw), mesh=mesh))
     return GroundTruthScene(name, seed, room, entities, _proximal_pairs(entities, proximal_tolerance))
 
 
+
+
+def entity_from_ground_truth(e: SceneEntity, mesh: trimesh.Trimesh | None = None) -> Entity:
+    """A ground-truth entity as the core ``Entity`` (optionally with another mesh, e.g. its observed part)."""
+    m = e.mesh if mesh is None else mesh
+    if m is None:
+        raise ValueError(f"ground-truth entity {e.name!r} has no mesh")
+    return Entity(e.id, e.class_name, np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64),
+                  name=e.name, class_id=e.class_id, instance_id=e.id if e.is_thing else 0, category=e.category,
+                  is_thing=e.is_thing, num_voxels=len(m.vertices))
+
+
+def entities_from_ground_truth(scene: GroundTruthScene) -> list[Entity]:
+    """Every entity of a ground-truth scene with its complete mesh (the paper's cg_map setting)."""
+    return [entity_from_ground_truth(e) for e in scene.entities]

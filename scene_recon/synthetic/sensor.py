@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from panoptic_mapping.dataio.frame import CameraIntrinsics, RGBDFrame
+from recon_core.frame import CameraIntrinsics, RGBDFrame
 from scene_recon.synthetic.depth_noise import DepthNoiseConfig, apply_depth_noise
 from scene_recon.synthetic.items import RenderItem
 from scene_recon.synthetic.renderer import RaycastRenderer, RenderConfig

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cad_replacement.cad import CLASS_BUILDERS, UNKNOWN_CLASS_ID, ClassTableError, UnknownClassError, load_class_table
-from cad_replacement.cad.classes import DEFAULT_CLASS_TABLE
+from cad_replacement.cad import CLASS_BUILDERS, UNKNOWN_CLASS_ID, ConfigError, UnknownClassError, load_class_table
+from recon_core.classes import DEFAULT_CLASS_TABLE
 
 
 def test_table_loads_and_covers_all_cad_classes() -> None:
@@ -67,14 +67,14 @@ def test_invalid_tables_are_rejected(tmp_path: Path, edit, message: str) -> None
     edit(data)
     path = tmp_path / "classes.yaml"
     path.write_text(yaml.safe_dump(data))
-    with pytest.raises(ClassTableError, match=message):
+    with pytest.raises(ConfigError, match=message):
         load_class_table(path)
 
 
 def test_unreadable_files(tmp_path: Path) -> None:
-    with pytest.raises(ClassTableError, match="cannot read"):
+    with pytest.raises(ConfigError, match="cannot read"):
         load_class_table(tmp_path / "missing.yaml")
     bad = tmp_path / "bad.yaml"
     bad.write_text("classes: [unclosed")
-    with pytest.raises(ClassTableError, match="invalid YAML"):
+    with pytest.raises(ConfigError, match="invalid YAML"):
         load_class_table(bad)

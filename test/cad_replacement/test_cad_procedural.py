@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from cad_replacement.cad import CLASS_BUILDERS, CadModel, UnknownCadClassError, build_model
+from cad_replacement.cad import CLASS_BUILDERS, CadModel, UnknownClassError, build_model
 
 SEEDS = range(10)
 ARTICULATED = ("fridge", "microwave", "cabinet", "oven", "dishwasher", "wardrobe")
@@ -167,7 +167,7 @@ def test_overrides_and_target_size() -> None:
         build_model("table", 0, overrides={"legs": 3})
     with pytest.raises(ValueError, match="one of"):
         build_model("table", 0, overrides={"top_shape": "oval"})
-    with pytest.raises(UnknownCadClassError, match="supported"):
+    with pytest.raises(UnknownClassError, match="supported"):
         build_model("spaceship", 0)
     with pytest.raises(ValueError, match="seed"):
         build_model("table", -1)

@@ -9,7 +9,7 @@ import pytest
 import yourdfpy
 
 from cad_replacement.cad import CadImportError, build_model, export_urdf, import_urdf_model, write_urdf
-from cad_replacement.cad.transforms import rotation_about
+from recon_core.geometry.transforms import rotation_about
 
 
 def test_external_urdf_imports_with_joints(tmp_path: Path, write_external_model) -> None:

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from cad_replacement.cad.classes import load_class_table
-from panoptic_mapping.entities import MappedEntity, save_entities
-from panoptic_mapping.metrics import (
+from recon_core.classes import load_class_table
+from recon_core.entity import Entity, save_entities
+from scene_recon.cli import main
+from scene_recon.evaluation.map_metrics import (
     PAPER_CLASSES,
     MetricsConfig,
     Segment,
@@ -23,7 +24,6 @@ from panoptic_mapping.metrics import (
     ground_truth_as_predictions,
     sample_surface_points,
 )
-from scene_recon.cli import main
 from scene_recon.synthetic.scene import build_scene
 
 TABLE = load_class_table()
@@ -49,13 +49,13 @@ def gt(eid: int, cls: str, mesh: trimesh.Trimesh | None) -> GT:
     return GT(eid, info.id, cls, info.is_thing, mesh)
 
 
-def pred(eid: int, cls: str, *meshes: trimesh.Trimesh, confidence: float = 1.0) -> MappedEntity:
+def pred(eid: int, cls: str, *meshes: trimesh.Trimesh, confidence: float = 1.0) -> Entity:
     """A predicted entity; several meshes are merged into one entity; cls 'unknown' is class -1."""
     cid, thing = (-1, True) if cls == "unknown" else (TABLE.by_name(cls).id, TABLE.by_name(cls).is_thing)
     mesh = trimesh.util.concatenate(list(meshes)) if meshes else trimesh.Trimesh()
     v = np.asarray(mesh.vertices, float).reshape(-1, 3)
     f = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
-    return MappedEntity(eid, cid, cls, eid, thing, confidence=confidence, vertices=v, faces=f)
+    return Entity(eid, cls, v, f, class_id=cid, instance_id=eid, is_thing=thing, confidence=confidence)
 
 
 FLOOR = box((4, 4, 0.1), (0, 0, -0.05))

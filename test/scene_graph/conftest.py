@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
+from recon_core.entity import Entity
 from scene_graph.config import SceneGraphConfig
-from scene_graph.entity import Entity
 
 
 def box_mesh(lo: Sequence[float], hi: Sequence[float], yaw: float = 0.0) -> trimesh.Trimesh:

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon
 
-from scene_graph.box import GravityBox, iou_matrix
-from scene_graph.box_fit import fit_gravity_box, min_area_rectangle_yaw
-from scene_graph.entity import EntityError
-from scene_graph.polygon import clip_convex, polygon_area, polygon_distance, rectangle, rectangles_overlap
+from recon_core.errors import EntityError
+from recon_core.geometry.box import GravityBox, iou_matrix
+from recon_core.geometry.box_fit import fit_gravity_box, min_area_rectangle_yaw
+from recon_core.geometry.polygon import clip_convex, polygon_area, polygon_distance, rectangle, rectangles_overlap
 
 
 def _rotated_cuboid_points(size, yaw, center, n=2000, seed=0):

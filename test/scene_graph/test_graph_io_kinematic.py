@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
+from recon_core.config import ConfigError
+from recon_core.contact_graph import ContactGraph, GraphError, SupportEdge
 from scene_graph.builder import build_contact_graph
-from scene_graph.graph import ContactGraph, GraphError, SupportEdge
 from scene_graph.joints import PairRule, SupportJointTable, load_support_joints
 from scene_graph.kinematic import to_kinematic_tree
-from scene_recon.config import ConfigError
 
 
 def test_json_round_trip(room, tmp_path):

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from scene_graph.box import GravityBox
+from recon_core.contact_graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
+from recon_core.entity import Entity
+from recon_core.geometry.box import GravityBox
 from scene_graph.builder import ContactGraphBuilder, build_contact_graph
 from scene_graph.config import LayoutConfig, SceneGraphConfig
-from scene_graph.entity import Entity
-from scene_graph.graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
 from scene_graph.layout import split_layout
-from scene_graph.metrics import evaluate_graph, graph_edit_distance, match_nodes
+from scene_recon.evaluation.graph_metrics import evaluate_graph, graph_edit_distance, match_nodes
 
 WALLS, FLOORS = ["wall"], ["floor", "ceiling"]
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scene_graph.box import GravityBox
-from scene_graph.graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
-from scene_graph.metrics import average_precision, box_map, graph_edit_distance, match_nodes
+from recon_core.contact_graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
+from recon_core.geometry.box import GravityBox
+from scene_recon.evaluation.graph_metrics import average_precision, box_map, graph_edit_distance, match_nodes
 
 #: Node positions on a grid: every node gets its own box so geometry identifies it.
 SPOTS = {"floor": (0, 0), "wall": (5, 0), "table": (1, 1), "cup": (1, 2), "book": (2, 2), "shelf": (3, 3),
@@ -127,7 +127,7 @@ def test_box_map_refined_vs_unrefined():
 def test_exact_ted_equals_brute_force_on_random_trees():
     import itertools
 
-    from scene_graph.metrics import constrained_tree_edit_distance
+    from scene_recon.evaluation.graph_metrics import constrained_tree_edit_distance
 
     rng = np.random.default_rng(5)
     names = ["floor", "table", "cup", "book", "shelf", "box", "bottle", "cabinet"]

@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from scene_graph.box import GravityBox
+from recon_core.geometry.box import GravityBox
 from scene_graph.broadphase import all_pairs, sweep_pairs
 from scene_graph.builder import build_contact_graph
 from scene_graph.config import ProximalConfig, RefineConfig, SceneGraphConfig
@@ -33,7 +33,7 @@ def test_planes_have_outward_normals_and_shelf_levels(room):
 
 
 def test_points_input_uses_ransac_only():
-    from scene_graph.entity import Entity
+    from recon_core.entity import Entity
 
     rng = np.random.default_rng(0)
     top = np.c_[rng.uniform(0, 1, (800, 2)), np.full(800, 0.7)]

@@ -7,12 +7,13 @@ import json
 import numpy as np
 import pytest
 
+from recon_core.entity import save_entities
+from recon_core.errors import InputError
 from scene_graph.builder import build_contact_graph
-from scene_graph.entity import entities_from_ground_truth
-from scene_graph.ground_truth import ground_truth_graph, restrict_graph
-from scene_graph.metrics import evaluate_graph
-from scene_graph.scene_io import SourceError, load_source, read_entities, write_entities
-from scene_recon.synthetic.scene import build_scene
+from scene_recon.evaluation.graph_ground_truth import ground_truth_graph, restrict_graph
+from scene_recon.evaluation.graph_metrics import evaluate_graph
+from scene_recon.sources import load_source, read_mapped
+from scene_recon.synthetic.scene import build_scene, entities_from_ground_truth
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +42,7 @@ def test_ground_truth_graph_and_restriction(scene):
 def test_mapped_scene_folder_round_trip(scene, tmp_path):
     ents = entities_from_ground_truth(scene)
     ents[3].revision = 7
-    write_entities(tmp_path / "mapped", ents, name="mapped-room")
+    save_entities(ents, tmp_path / "mapped", name="mapped-room")
     src = load_source(tmp_path / "mapped")
     assert src.kind == "mapped" and src.name == "mapped-room" and len(src.entities) == len(ents)
     a, b = ents[3], src.entities[3]
@@ -52,14 +53,14 @@ def test_mapped_scene_folder_round_trip(scene, tmp_path):
     assert g1.parents() == g2.parents()
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "entities.json").write_text(json.dumps({"format": "x"}))
-    with pytest.raises(SourceError, match="cannot read entities"):
-        read_entities(tmp_path / "bad")
-    with pytest.raises(SourceError, match="neither"):
+    with pytest.raises(InputError, match="cannot read entities"):
+        read_mapped(tmp_path / "bad")
+    with pytest.raises(InputError, match="neither"):
         load_source(tmp_path)
 
 
 def test_observed_meshes_keep_what_a_camera_sees(entity):
-    from scene_graph.observed import CameraView, ObservationConfig, observed_entities
+    from scene_recon.evaluation.observed import CameraView, ObservationConfig, observed_entities
     from scene_recon.synthetic.scene import GroundTruthScene, SceneEntity
 
     cube = entity(2, "box", [([-0.25, -0.25, 0.0], [0.25, 0.25, 0.5])])

@@ -7,9 +7,9 @@ import logging
 import numpy as np
 import pytest
 
+from recon_core.contact_graph import ROOT_ID
+from recon_core.errors import EntityError
 from scene_graph.builder import build_contact_graph
-from scene_graph.entity import EntityError
-from scene_graph.graph import ROOT_ID
 
 
 def parents(graph) -> dict[str, str]:
@@ -127,7 +127,7 @@ def test_no_cycles_between_equal_bottoms(entity):
 
 
 def test_degenerate_entities_give_clear_results(entity):
-    from scene_graph.entity import Entity
+    from recon_core.entity import Entity
 
     ents = [
         entity(1, "floor", [([-2, -2, -0.05], [2, 2, 0])]),
@@ -159,7 +159,7 @@ def test_root_id_is_reserved(entity):
 
 
 def test_non_finite_vertices_are_rejected():
-    from scene_graph.entity import Entity
+    from recon_core.entity import Entity
 
     with pytest.raises(EntityError, match="non-finite"):
         Entity.from_points(1, "bad", "box", [[0, 0, np.nan]])

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cad_replacement.cad.classes import UnknownClassError
 from panoptic_mapping.segmentation import SegmentationError, load_model_config
 from panoptic_mapping.segmentation.class_map import COCO_THING_NAMES
 from panoptic_mapping.segmentation.decode_common import DecodeContext
@@ -13,7 +12,8 @@ from panoptic_mapping.segmentation.letterbox import Letterbox, box_pixels, make_
 from panoptic_mapping.segmentation.model_config import OnnxModelConfig, PreprocessConfig
 from panoptic_mapping.segmentation.nms import nms
 from panoptic_mapping.segmentation.onnx_backend import OnnxSegmenter
-from scene_recon.config import ConfigError
+from recon_core.classes import UnknownClassError
+from recon_core.config import ConfigError
 
 COCO = {name: i for i, name in enumerate(COCO_THING_NAMES)}
 NM = 2  # mask prototypes of the test YOLO model

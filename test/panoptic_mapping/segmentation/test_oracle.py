@@ -7,7 +7,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from cad_replacement.cad.classes import load_class_table
 from panoptic_mapping.segmentation import (
     OracleConfig,
     OracleNoiseConfig,
@@ -16,7 +15,8 @@ from panoptic_mapping.segmentation import (
     make_segmenter,
 )
 from panoptic_mapping.segmentation.config import SegmentationConfig, clean_noise, default_noise_levels
-from scene_recon.config import ConfigError
+from recon_core.classes import load_class_table
+from recon_core.config import ConfigError
 
 TABLE = load_class_table()
 H, W = 240, 320  # half of 480: pixel sizes of the noise config scale by 0.5, areas by 0.25

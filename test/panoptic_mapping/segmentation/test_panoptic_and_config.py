@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cad_replacement.cad.classes import load_class_table
 from panoptic_mapping.segmentation import (
     MaskCrop,
     NoneSegmenter,
@@ -19,7 +18,8 @@ from panoptic_mapping.segmentation import (
     make_segmenter,
 )
 from panoptic_mapping.segmentation.config import DEFAULT_SEGMENTATION_YAML, default_noise_levels
-from scene_recon.config import ConfigError
+from recon_core.classes import load_class_table
+from recon_core.config import ConfigError
 
 TABLE = load_class_table()
 

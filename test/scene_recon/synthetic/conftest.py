@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from panoptic_mapping.dataio.frame import CameraIntrinsics
+from recon_core.frame import CameraIntrinsics
 from scene_recon.synthetic import Appearance, RenderItem, RoomBounds, look_at_pose
 from scene_recon.synthetic.toy_scene import room_shell
 

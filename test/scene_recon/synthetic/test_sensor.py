@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from panoptic_mapping.dataio.frame import RGBDFrame
+from recon_core.frame import RGBDFrame
 from scene_recon.synthetic import (
     DepthNoiseConfig,
     OverviewConfig,
@@ -81,7 +81,7 @@ def test_reported_poses_and_length_checks(sim, poses):
 
 
 def test_sensor_config_loads_from_yaml(tmp_path):
-    from scene_recon.config import dump_config, load_config
+    from recon_core.config import dump_config, load_config
 
     path = tmp_path / "sensor.yaml"
     dump_config(SensorConfig(), path)

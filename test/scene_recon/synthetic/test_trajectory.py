@@ -158,7 +158,7 @@ def test_loop_grows_with_recording_length():
 
 
 def test_trajectory_config_from_yaml(tmp_path):
-    from scene_recon.config import dump_config, load_config
+    from recon_core.config import dump_config, load_config
 
     path = tmp_path / "traj.yaml"
     dump_config(TrajectoryConfig(), path)

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .polygon import EPS, convex_intersection_area, rectangle
+from recon_core.geometry.polygon import EPS, convex_intersection_area, rectangle
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,9 +125,17 @@ class GravityBox:
         return cls(d["center"], d["size"], float(d.get("yaw", 0.0)))
 
     @classmethod
-    def from_any(cls, box: Any) -> GravityBox:
-        """From any object with center/size/yaw (the ground-truth or CAD OrientedBox types)."""
-        return cls(box.center, box.size, float(box.yaw))
+    def of_points(cls, points: ArrayLike, yaw: float) -> GravityBox:
+        """Tight box of (N, 3) ``points`` in the frame rotated by ``yaw`` about z."""
+        c, s = np.cos(yaw), np.sin(yaw)
+        v = np.asarray(points, np.float64).reshape(-1, 3)
+        if len(v) == 0:
+            raise ValueError("GravityBox.of_points needs at least one point")
+        local = np.c_[c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], v[:, 2]]
+        lo, hi = local.min(0), local.max(0)
+        mid = (lo + hi) / 2
+        center = np.array([c * mid[0] - s * mid[1], s * mid[0] + c * mid[1], mid[2]])
+        return cls(center, hi - lo, float(yaw))
 
 
 def iou_matrix(pred: list[GravityBox], gt: list[GravityBox]) -> NDArray[np.float64]:

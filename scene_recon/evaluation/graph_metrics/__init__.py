@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..config import MatchConfig
-from ..graph import ContactGraph
-from .box_map import BoxMapResult, average_precision, box_map
-from .ged import GedResult, constrained_tree_edit_distance, graph_edit_distance
-from .matching import NodeMatching, match_nodes
+from recon_core.contact_graph import ContactGraph
+from scene_graph.config import MatchConfig
+from scene_recon.evaluation.graph_metrics.box_map import BoxMapResult, average_precision, box_map
+from scene_recon.evaluation.graph_metrics.ged import GedResult, constrained_tree_edit_distance, graph_edit_distance
+from scene_recon.evaluation.graph_metrics.matching import NodeMatching, match_nodes
 
 
 def restrict_to_seen(pred: ContactGraph, gt: ContactGraph, seen: set[int],

@@ -18,14 +18,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from scene_recon.synthetic.scene import GroundTruthScene, build_scene
-
-from .builder import build_contact_graph
-from .config import SceneGraphConfig, load_scene_graph_config
-from .entity import entities_from_ground_truth
-from .ground_truth import ground_truth_graph, restrict_graph
-from .metrics import evaluate_graph
-from .observed import ObservationConfig, camera_views, observed_entities
+from scene_graph.builder import build_contact_graph
+from scene_graph.config import SceneGraphConfig, load_scene_graph_config
+from scene_recon.evaluation.graph_ground_truth import ground_truth_graph, restrict_graph
+from scene_recon.evaluation.graph_metrics import evaluate_graph
+from scene_recon.evaluation.observed import ObservationConfig, camera_views, observed_entities
+from scene_recon.synthetic.scene import GroundTruthScene, build_scene, entities_from_ground_truth
 
 SUITE = ("bench-small", "bench-kitchen", "bench-office", "bench-clutter")
 

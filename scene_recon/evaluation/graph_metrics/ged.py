@@ -25,9 +25,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..config import MatchConfig
-from ..graph import ContactGraph
-from .matching import NodeMatching, match_nodes
+from recon_core.contact_graph import ContactGraph
+from scene_graph.config import MatchConfig
+from scene_recon.evaluation.graph_metrics.matching import NodeMatching, match_nodes
 
 #: Beyond this many conflicting pairs the vertex cover falls back to a greedy bound (flagged).
 MAX_EXACT_CONFLICT_NODES = 60

@@ -16,9 +16,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import ConvexHull, QhullError
 
-from .box import GravityBox
-from .entity import EntityError
-from .polygon import EPS
+from recon_core.errors import EntityError
+from recon_core.geometry.box import GravityBox
+from recon_core.geometry.polygon import EPS
 
 #: Fewer points than this are never trimmed (percentiles of a handful of points are meaningless).
 MIN_POINTS_TO_TRIM = 20

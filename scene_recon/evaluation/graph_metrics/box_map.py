@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..box import GravityBox
-from ..classify import LAYOUT, SCENE
-from ..graph import ContactGraph
+from recon_core.contact_graph import SCENE, ContactGraph
+from recon_core.geometry.box import GravityBox
+from scene_graph.classify import LAYOUT
 
 
 @dataclass

@@ -9,6 +9,8 @@ nested structure to the dotted names used for ROS 2 parameters (`sync.slop_s`).
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
+import os
 import types
 import typing
 from pathlib import Path
@@ -16,14 +18,38 @@ from typing import Any, TypeVar
 
 import yaml
 
+from recon_core.errors import ConfigError
+
 T = TypeVar("T")
 
-#: Folder holding the project's YAML files (source checkout; installed copies under share/).
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "config"
+#: Python package under which the top-level ``config/`` folder is installed (setup.py maps it), so
+#: an editable install, a wheel and a colcon/ament install all find the YAML files the same way.
+CONFIG_PACKAGE = "recon_core.default_config"
+#: Environment variable naming another folder with the same layout (site-specific defaults).
+CONFIG_DIR_ENV = "SCENE_RECON_CONFIG_DIR"
 
 
-class ConfigError(ValueError):
-    """A configuration file or override is invalid; the message names the key."""
+def _config_dir() -> Path:
+    override = os.environ.get(CONFIG_DIR_ENV)
+    if override:
+        return Path(override)
+    try:
+        return Path(str(importlib.resources.files(CONFIG_PACKAGE)))
+    except ModuleNotFoundError:  # running from a checkout that was never installed
+        return Path(__file__).resolve().parent.parent / "config"
+
+
+#: Folder holding the project's default YAML files (see ``_config_dir``).
+CONFIG_DIR = _config_dir()
+
+
+def config_file(name: str) -> Path:
+    """Path of a default configuration file (``"mapper.yaml"``, ``"segmentation/yolo_seg.yaml"``)."""
+    path = CONFIG_DIR / name
+    if not path.is_file():
+        raise ConfigError(f"default configuration {name!r} not found in {CONFIG_DIR}: reinstall the package "
+                          f"or set {CONFIG_DIR_ENV} to a folder holding it")
+    return path
 
 
 def _convert(value: Any, annotation: Any, where: str) -> Any:

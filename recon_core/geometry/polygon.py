@@ -114,3 +114,20 @@ def polygon_distance(a: ArrayLike, b: ArrayLike) -> float:
     d1 = _point_segment_distance(pa, pb, np.roll(pb, -1, axis=0)).min()
     d2 = _point_segment_distance(pb, pa, np.roll(pa, -1, axis=0)).min()
     return float(min(d1, d2))
+
+
+def points_in_polygon(points: ArrayLike, polygon: ArrayLike) -> NDArray[np.bool_]:
+    """Even-odd rule point-in-polygon test, vectorised over points and edges."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    poly = np.asarray(polygon, dtype=np.float64).reshape(-1, 2)
+    a = poly[None, :, :]
+    b = np.roll(poly, -1, axis=0)[None, :, :]
+    px = pts[:, None, 0]
+    py = pts[:, None, 1]
+    straddles = (a[..., 1] > py) != (b[..., 1] > py)
+    dy = b[..., 1] - a[..., 1]
+    safe_dy = np.where(np.abs(dy) < EPS, 1.0, dy)
+    x_cross = a[..., 0] + (py - a[..., 1]) * (b[..., 0] - a[..., 0]) / safe_dy
+    crossings = straddles & (px < x_cross)
+    return (np.count_nonzero(crossings, axis=1) % 2) == 1
+

@@ -28,10 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from ..box import GravityBox, iou_matrix
-from ..classify import LAYOUT
-from ..config import MatchConfig
-from ..graph import ContactGraph
+from recon_core.contact_graph import ContactGraph
+from recon_core.geometry.box import GravityBox, iou_matrix
+from scene_graph.classify import LAYOUT
+from scene_graph.config import MatchConfig
 
 #: Cost of a forbidden pair in the assignment (larger than any allowed cost).
 FORBIDDEN = 1e6

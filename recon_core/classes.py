@@ -18,27 +18,19 @@ from typing import Any, Literal
 
 import yaml
 
+from recon_core.config import CONFIG_DIR
+from recon_core.errors import ConfigError, UnknownClassError
+
 #: Id of the "unknown" class; handled in code, never listed in the YAML file.
 UNKNOWN_CLASS_ID = -1
 #: Default location of the class table in a source checkout.
-DEFAULT_CLASS_TABLE = Path(__file__).resolve().parents[2] / "config" / "classes.yaml"
+DEFAULT_CLASS_TABLE = CONFIG_DIR / "classes.yaml"
 
 Category = Literal["layout", "rigid", "articulated"]
 CATEGORIES: tuple[str, ...] = ("layout", "rigid", "articulated")
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 _CLASS_KEYS = {"id", "name", "category", "is_thing", "movable", "density", "coco"}
 _TOP_KEYS = {"version", "classes", "confusion_groups"}
-
-
-class ClassTableError(ValueError):
-    """The class table file is malformed; the message names the file and the offending entry."""
-
-
-class UnknownClassError(KeyError):
-    """A lookup named a class (name, id or COCO name) that the table does not contain."""
-
-    def __str__(self) -> str:
-        return str(self.args[0]) if self.args else ""
 
 
 @dataclass(frozen=True)
@@ -120,8 +112,8 @@ class ClassTable:
         return tuple(c for c in self._classes if c.category == category)
 
 
-def _fail(path: Path, where: str, msg: str) -> ClassTableError:
-    return ClassTableError(f"{path}: {where}: {msg}")
+def _fail(path: Path, where: str, msg: str) -> ConfigError:
+    return ConfigError(f"{path}: {where}: {msg}")
 
 
 def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
@@ -227,9 +219,9 @@ def load_class_table(path: Path | str | None = None) -> ClassTable:
     try:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
-        raise ClassTableError(f"{p}: cannot read class table: {exc}") from exc
+        raise ConfigError(f"{p}: cannot read class table: {exc}") from exc
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ClassTableError(f"{p}: invalid YAML: {exc}") from exc
+        raise ConfigError(f"{p}: invalid YAML: {exc}") from exc
     return parse_class_table(data, p)

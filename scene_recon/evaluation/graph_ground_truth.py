@@ -8,10 +8,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from recon_core.contact_graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
+from recon_core.geometry.box import GravityBox
 from scene_recon.synthetic.scene import ROOT, GroundTruthScene
-
-from .box import GravityBox
-from .graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
 
 
 def ground_truth_graph(scene: GroundTruthScene) -> ContactGraph:

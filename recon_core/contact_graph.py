@@ -13,20 +13,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cad_replacement.cad.feature_types import Plane
-
-from .box import GravityBox
-from .classify import SCENE
-from .planes import SurfacePlane
+from recon_core.errors import GraphError
+from recon_core.geometry.box import GravityBox
+from recon_core.geometry.plane import Plane, SurfacePlane
 
 ROOT_ID = 0
 ROOT_NAME = "scene"
+#: Category of the root node (not a class-table category).
+SCENE = "scene"
 GRAPH_FORMAT = "scene_recon.contact_graph"
 GRAPH_VERSION = 1
-
-
-class GraphError(ValueError):
-    """A contact graph is malformed (unknown parent, cycle, duplicate id)."""
 
 
 @dataclass(eq=False)

@@ -19,12 +19,18 @@ def sanitize_name(name: str, fallback: str = "unnamed") -> str:
     return cleaned if cleaned.strip("_") else fallback
 
 
+def urdf_name(name: str, fallback: str = "unnamed") -> str:
+    """A URDF/TF-safe name: ``sanitize_name`` and never starting with a digit (XML names cannot)."""
+    safe = sanitize_name(name, fallback)
+    return f"_{safe}" if safe[0].isdigit() else safe
+
+
 def unique_names(names: Iterable[str], fallback: str = "unnamed") -> list[str]:
     """Sanitise each name and append ``_2``, ``_3``... to repeats (order preserved)."""
     out: list[str] = []
     seen: set[str] = set()
     for raw in names:
-        base = sanitize_name(raw, fallback)
+        base = sanitize_name(raw, fallback)  # idempotent on names that are already safe
         name, k = base, 2
         while name in seen:
             name, k = f"{base}_{k}", k + 1

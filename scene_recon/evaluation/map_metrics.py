@@ -51,7 +51,7 @@ from typing import Any, Protocol
 import numpy as np
 import trimesh
 
-from panoptic_mapping.entities import MappedEntity
+from recon_core.entity import Entity
 
 #: The 10 classes of the paper's evaluation (Sec. 5.2): 2 stuff + 8 thing classes.
 PAPER_CLASSES: tuple[str, ...] = ("wall", "floor", "bed", "table", "chair", "monitor", "sofa", "bag", "cabinet",
@@ -179,7 +179,7 @@ def _mesh_arrays(mesh: trimesh.Trimesh | None) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
 
 
-def _entity_arrays(e: MappedEntity) -> tuple[np.ndarray, np.ndarray]:
+def _entity_arrays(e: Entity) -> tuple[np.ndarray, np.ndarray]:
     v = np.asarray(e.vertices, np.float64).reshape(-1, 3)
     f = np.asarray(e.faces, np.int64).reshape(-1, 3)
     return (v, f) if len(f) and len(v) else (np.zeros((0, 3)), np.zeros((0, 3), np.int64))
@@ -542,7 +542,7 @@ def _included(class_ids: Sequence[int], names: Sequence[str], classes: Iterable[
                     bool).reshape(-1)
 
 
-def evaluate_panoptic_map(predictions: Sequence[MappedEntity], ground_truth: Iterable[GroundTruthEntityLike],
+def evaluate_panoptic_map(predictions: Sequence[Entity], ground_truth: Iterable[GroundTruthEntityLike],
                           config: MetricsConfig | None = None,
                           classes: Iterable[str] | None = None) -> PanopticMetrics:
     """3D panoptic quality and instance mAP of mapped entities against ground-truth entities.
@@ -596,11 +596,11 @@ def evaluate_panoptic_map(predictions: Sequence[MappedEntity], ground_truth: Ite
     return result
 
 
-def ground_truth_as_predictions(ground_truth: Iterable[GroundTruthEntityLike]) -> list[MappedEntity]:
+def ground_truth_as_predictions(ground_truth: Iterable[GroundTruthEntityLike]) -> list[Entity]:
     """The ground truth as a perfect map (upper bound / sanity check of the protocol: PQ = 100)."""
     out = []
     for e in getattr(ground_truth, "entities", ground_truth):
         v, f = _mesh_arrays(e.mesh)
-        out.append(MappedEntity(int(e.id), int(e.class_id), e.class_name, int(e.id), bool(e.is_thing),
-                                getattr(e, "category", "rigid"), 1.0, 0, 0, v, f))
+        out.append(Entity(int(e.id), e.class_name, v, f, class_id=int(e.class_id), instance_id=int(e.id),
+                          is_thing=bool(e.is_thing), category=getattr(e, "category", "rigid")))
     return out

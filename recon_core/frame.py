@@ -6,9 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-
-class DatasetError(RuntimeError):
-    """A data source cannot be read as asked; the message says what is wrong and what to do."""
+from recon_core.errors import DatasetError
 
 
 @dataclass(frozen=True)

@@ -24,9 +24,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from scene_recon.synthetic.scene import GroundTruthScene
-
-from .entity import Entity
+from recon_core.entity import Entity
+from scene_recon.synthetic.scene import GroundTruthScene, entity_from_ground_truth
 
 
 @dataclass
@@ -128,5 +127,5 @@ def observed_entities(scene: GroundTruthScene, views: list[CameraView],
         if cfg.vertex_noise > 0.0:
             sub = trimesh.Trimesh(sub.vertices + rng.normal(0.0, cfg.vertex_noise, sub.vertices.shape), sub.faces,
                                   process=False)
-        out.append(Entity.from_scene_entity(e, sub))
+        out.append(entity_from_ground_truth(e, sub))
     return out, stats

@@ -1,0 +1,267 @@
+"""A scene or an object as a kinematic tree (paper Sec. 4.5) and the project's one URDF writer.
+
+Links are rigid bodies (a layout element, a rigid object, or one part of an articulated object);
+joints connect them: a CAD model's own revolute/prismatic joints, and the contact graph's support
+edges turned into fixed joints (a table on the floor) or floating joints (a cup on a table).
+Everything that writes URDF (a single CAD model, the reconstructed scene, the synthetic world's
+ground truth) builds a ``KinematicTree`` and calls ``to_urdf``/``urdf_text``, so names, number
+formats, inertials and mesh references follow one convention.
+
+Every name written into XML is sanitised (``recon_core.names``) and made unique; attribute values
+go through ``quoteattr``; numbers are printed with 17 significant digits and must be finite.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+import trimesh
+from numpy.typing import ArrayLike, NDArray
+
+from recon_core.geometry.transforms import EPS_NORM
+from recon_core.io import write_text_atomic
+from recon_core.names import unique_names, urdf_name
+
+JOINT_TYPES = ("fixed", "floating", "revolute", "prismatic", "continuous")
+MeshFormat = Literal["stl", "obj"]
+RGBA = tuple[float, float, float, float]
+#: Joint effort (N or N m) and velocity (m/s or rad/s) limits written when a joint has none.
+DEFAULT_EFFORT = 100.0
+DEFAULT_VELOCITY = 1.0
+#: Smallest box extent (m) used for a link's inertia, so flat parts keep a positive-definite tensor.
+MIN_INERTIA_EXTENT = 1e-3
+
+
+def format_number(value: float) -> str:
+    """A finite float with 17 significant digits (exact round trip); non-finite values are refused."""
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"non-finite value in URDF output: {v}")
+    return format(v, ".17g")
+
+
+def format_vector(values: ArrayLike) -> str:
+    return " ".join(format_number(v) for v in np.asarray(values, dtype=np.float64).reshape(-1))
+
+
+def rpy_of(rotation: NDArray[np.float64]) -> NDArray[np.float64]:
+    """URDF roll-pitch-yaw (fixed axes x, y, z: R = Rz(y) Ry(p) Rx(r)) of a 3x3 rotation."""
+    m = np.eye(4)
+    m[:3, :3] = rotation
+    return np.asarray(trimesh.transformations.euler_from_matrix(m, "sxyz"), dtype=np.float64)
+
+
+def origin_element(transform: NDArray[np.float64]) -> str:
+    t = np.asarray(transform, dtype=np.float64)
+    return f"<origin xyz={quoteattr(format_vector(t[:3, 3]))} rpy={quoteattr(format_vector(rpy_of(t[:3, :3])))}/>"
+
+
+@dataclass
+class TreeLink:
+    """A rigid body; ``mesh`` (visual and collision) is expressed in the link frame.
+
+    ``mass`` 0 means massless (layout, fixed world parts: no inertial is written). The inertia is
+    that of the mesh's bounding box about its centre unless ``inertia`` (3x3, about
+    ``center_of_mass``) is given.
+    """
+
+    name: str
+    mesh: trimesh.Trimesh | None = None
+    mass: float = 0.0
+    rgba: RGBA | None = (0.7, 0.7, 0.7, 1.0)
+    center_of_mass: NDArray[np.float64] | None = None
+    inertia: NDArray[np.float64] | None = None
+
+
+@dataclass
+class TreeJoint:
+    """A joint (URDF semantics): ``origin`` is the child joint frame in the parent link frame."""
+
+    name: str
+    type: str
+    parent: str
+    child: str
+    origin: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
+    axis: NDArray[np.float64] = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    lower: float = 0.0
+    upper: float = 0.0
+    value: float = 0.0  # current joint value (rad or m); floating joints keep their pose in `origin`
+    effort: float = DEFAULT_EFFORT
+    velocity: float = DEFAULT_VELOCITY
+
+    def __post_init__(self) -> None:
+        if self.type not in JOINT_TYPES:
+            raise ValueError(f"joint {self.name!r}: type {self.type!r} not in {JOINT_TYPES}")
+
+
+def box_inertia(mass: float, extents: ArrayLike) -> NDArray[np.float64]:
+    """Inertia tensor of a solid box of ``extents`` about its centre."""
+    a, b, c = np.maximum(np.asarray(extents, dtype=np.float64).reshape(3), MIN_INERTIA_EXTENT) ** 2
+    return np.diag([mass / 12.0 * (b + c), mass / 12.0 * (a + c), mass / 12.0 * (a + b)])
+
+
+@dataclass
+class KinematicTree:
+    name: str
+    root: str
+    links: list[TreeLink] = field(default_factory=list)
+    joints: list[TreeJoint] = field(default_factory=list)
+
+    @staticmethod
+    def motion(joint: TreeJoint, value: float) -> NDArray[np.float64]:
+        m = np.eye(4)
+        axis = np.asarray(joint.axis, dtype=np.float64)
+        axis = axis / max(float(np.linalg.norm(axis)), EPS_NORM)
+        if joint.type in ("revolute", "continuous"):
+            m[:3, :3] = trimesh.transformations.rotation_matrix(value, axis)[:3, :3]
+        elif joint.type == "prismatic":
+            m[:3, 3] = value * axis
+        return m
+
+    def link_poses(self, values: Mapping[str, float] | None = None) -> dict[str, NDArray[np.float64]]:
+        """Forward kinematics: pose of every link in the root frame (values by joint name)."""
+        values = values or {}
+        children: dict[str, list[TreeJoint]] = {}
+        for j in self.joints:
+            children.setdefault(j.parent, []).append(j)
+        poses = {self.root: np.eye(4)}
+        stack = [self.root]
+        while stack:
+            parent = stack.pop()
+            for j in children.get(parent, []):
+                q = values.get(j.name, j.value)
+                poses[j.child] = poses[parent] @ j.origin @ self.motion(j, q)
+                stack.append(j.child)
+        return poses
+
+    def validate(self) -> None:
+        names = [link.name for link in self.links]
+        if len(set(names)) != len(names):
+            raise ValueError("duplicate link names in kinematic tree")
+        known = set(names)
+        seen_children = set()
+        for j in self.joints:
+            if j.parent not in known or j.child not in known:
+                raise ValueError(f"joint {j.name!r} connects unknown links {j.parent!r} -> {j.child!r}")
+            if j.child in seen_children:
+                raise ValueError(f"link {j.child!r} has two parent joints")
+            seen_children.add(j.child)
+        if self.root in seen_children or known - seen_children != {self.root}:
+            raise ValueError("kinematic tree must have exactly one root and connect every link")
+
+    # ------------------------------------------------------------------ URDF
+    def safe_names(self) -> tuple[dict[str, str], list[str]]:
+        """URDF names: link name -> safe unique name, and the joints' safe unique names (in order)."""
+        links = dict(zip([lk.name for lk in self.links], unique_names(urdf_name(lk.name) for lk in self.links),
+                         strict=True))
+        joints = unique_names(urdf_name(j.name) for j in self.joints)
+        return links, joints
+
+    def urdf_text(self, mesh_dir: str | Path, mesh_uri_prefix: str = "", mesh_format: MeshFormat = "stl") -> str:
+        """Write the link meshes into ``mesh_dir`` and return the URDF document.
+
+        Mesh references are ``mesh_uri_prefix + <file name>`` (relative paths keep a scene folder
+        movable).
+        """
+        if mesh_format not in ("stl", "obj"):
+            raise ValueError(f"mesh_format must be 'stl' or 'obj', got {mesh_format!r}")
+        self.validate()
+        out = Path(mesh_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        link_names, joint_names = self.safe_names()
+        lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(urdf_name(self.name))}>"]
+        for link in self.links:
+            lines.extend(_link_lines(link, link_names[link.name], out, mesh_uri_prefix, mesh_format))
+        for j, jname in zip(self.joints, joint_names, strict=True):
+            lines.extend(_joint_lines(j, jname, link_names))
+        lines.append("  <!-- generated by scene_recon -->")
+        lines.append("</robot>")
+        return "\n".join(lines) + "\n"
+
+    def to_urdf(self, folder: str | Path, mesh_dir: str = "meshes", filename: str | None = None,
+                mesh_format: MeshFormat = "stl") -> Path:
+        """Write ``<folder>/<name>.urdf`` (atomically) and the link meshes under ``<folder>/<mesh_dir>/``."""
+        folder = Path(folder)
+        text = self.urdf_text(folder / mesh_dir, f"{mesh_dir}/" if mesh_dir else "", mesh_format)
+        return write_text_atomic(folder / (filename or f"{urdf_name(self.name)}.urdf"), text)
+
+
+def _link_lines(link: TreeLink, name: str, out: Path, uri_prefix: str, mesh_format: str) -> list[str]:
+    lines = [f"  <link name={quoteattr(name)}>"]
+    mesh = link.mesh
+    if mesh is not None and len(mesh.faces):
+        fname = f"{name}.{mesh_format}"
+        mesh.export(out / fname, file_type=mesh_format)
+        geometry = f"<geometry><mesh filename={quoteattr(uri_prefix + fname)}/></geometry>"
+        material = ""
+        if link.rgba is not None:
+            material = (f"<material name={quoteattr(name + '_material')}>"
+                        f"<color rgba={quoteattr(format_vector(link.rgba))}/></material>")
+        lines.append(f'    <visual><origin xyz="0 0 0" rpy="0 0 0"/>{geometry}{material}</visual>')
+        lines.append(f'    <collision><origin xyz="0 0 0" rpy="0 0 0"/>{geometry}</collision>')
+    if link.mass > 0.0:
+        lines.extend(_inertial_lines(link))
+    lines.append("  </link>")
+    return lines
+
+
+def _inertial_lines(link: TreeLink) -> list[str]:
+    mesh = link.mesh
+    if link.center_of_mass is not None:
+        center = np.asarray(link.center_of_mass, dtype=np.float64)
+    elif mesh is not None and len(mesh.vertices):
+        lo, hi = mesh.bounds
+        center = 0.5 * (lo + hi)
+    else:
+        center = np.zeros(3)
+    if link.inertia is not None:
+        inertia = np.asarray(link.inertia, dtype=np.float64).reshape(3, 3)
+    else:
+        extents = (mesh.bounds[1] - mesh.bounds[0]) if mesh is not None and len(mesh.vertices) else np.zeros(3)
+        inertia = box_inertia(link.mass, extents)
+    n = format_number
+    return [
+        "    <inertial>",
+        f'      <origin xyz={quoteattr(format_vector(center))} rpy="0 0 0"/>',
+        f"      <mass value={quoteattr(n(link.mass))}/>",
+        f"      <inertia ixx={quoteattr(n(inertia[0, 0]))} ixy={quoteattr(n(inertia[0, 1]))}"
+        f" ixz={quoteattr(n(inertia[0, 2]))} iyy={quoteattr(n(inertia[1, 1]))} iyz={quoteattr(n(inertia[1, 2]))}"
+        f" izz={quoteattr(n(inertia[2, 2]))}/>",
+        "    </inertial>",
+    ]
+
+
+def _joint_lines(j: TreeJoint, name: str, link_names: Mapping[str, str]) -> list[str]:
+    lines = [f"  <joint name={quoteattr(name)} type={quoteattr(j.type)}>",
+             f"    {origin_element(j.origin)}",
+             f"    <parent link={quoteattr(link_names[j.parent])}/>",
+             f"    <child link={quoteattr(link_names[j.child])}/>"]
+    if j.type in ("revolute", "prismatic", "continuous"):
+        axis = np.asarray(j.axis, dtype=np.float64)
+        lines.append(f"    <axis xyz={quoteattr(format_vector(axis / max(float(np.linalg.norm(axis)), EPS_NORM)))}/>")
+    if j.type in ("revolute", "prismatic"):
+        lines.append(f"    <limit lower={quoteattr(format_number(j.lower))} upper={quoteattr(format_number(j.upper))}"
+                     f" effort={quoteattr(format_number(j.effort))} velocity={quoteattr(format_number(j.velocity))}/>")
+    lines.append("  </joint>")
+    return lines
+
+
+__all__ = [
+    "DEFAULT_EFFORT",
+    "DEFAULT_VELOCITY",
+    "JOINT_TYPES",
+    "KinematicTree",
+    "TreeJoint",
+    "TreeLink",
+    "box_inertia",
+    "format_number",
+    "format_vector",
+    "origin_element",
+    "rpy_of",
+]

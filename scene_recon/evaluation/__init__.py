@@ -1,0 +1,1 @@
+"""Evaluation against ground truth (tool layer): 3D panoptic quality of maps, contact-graph metrics."""
