@@ -24,17 +24,17 @@ from rclpy.node import Node
 from scene_recon_interfaces.msg import ContactGraph as ContactGraphMsg
 from scene_recon_interfaces.msg import ContactGraphNode as ContactGraphNodeMsg
 from scene_recon_interfaces.msg import OrientedBox as OrientedBoxMsg
-from scene_recon_interfaces.msg import PanopticEntity, PanopticEntityArray, ProximalEdge
+from scene_recon_interfaces.msg import PanopticEntityArray, ProximalEdge
 from scene_recon_interfaces.msg import SupportEdge as SupportEdgeMsg
 from shape_msgs.msg import Plane as PlaneMsg
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from recon_core.contact_graph import SCENE, ContactGraph, GraphNode, SupportEdge
-from recon_core.entity import Entity, EntityError
+from recon_core.entity import EntityError
 from recon_core.geometry.box import GravityBox
 from recon_core.geometry.plane import Plane, SurfacePlane
-from ros_nodes.entity_conversions import mesh_from_msg, oriented_box_msg
+from ros_nodes.entity_conversions import msg_to_entity, oriented_box_msg
 from ros_nodes.qos import ENTITIES as ENTITIES_QOS
 from ros_nodes.qos import LATCHED
 from ros_nodes.runner import run_node
@@ -46,8 +46,6 @@ from scene_graph.joints import load_support_joints
 NODE_TYPE = {SCENE: ContactGraphNodeMsg.TYPE_SCENE, LAYOUT: ContactGraphNodeMsg.TYPE_LAYOUT,
              RIGID: ContactGraphNodeMsg.TYPE_RIGID, ARTICULATED: ContactGraphNodeMsg.TYPE_ARTICULATED}
 NODE_CATEGORY = {v: k for k, v in NODE_TYPE.items()}
-ENTITY_CATEGORY = {PanopticEntity.CATEGORY_LAYOUT: LAYOUT, PanopticEntity.CATEGORY_RIGID: RIGID,
-                   PanopticEntity.CATEGORY_ARTICULATED: ARTICULATED}
 JOINT_TYPE = {"fixed": SupportEdgeMsg.JOINT_FIXED, "floating": SupportEdgeMsg.JOINT_FLOATING}
 JOINT_NAME = {v: k for k, v in JOINT_TYPE.items()}
 #: Marker colours per category (RGBA).
@@ -59,18 +57,6 @@ PLANE_MARKER_THICKNESS = 0.005
 
 
 # ---------------------------------------------------------------------------------------------- conversions
-def entity_from_msg(msg: PanopticEntity) -> Entity:
-    """A PanopticEntity (inline mesh, or a file:// / plain-path ``mesh_uri``) as a builder entity."""
-    try:
-        v, f = mesh_from_msg(msg)
-    except ValueError as exc:
-        raise EntityError(str(exc)) from exc
-    name = f"{msg.class_name or 'entity'}_{msg.id}"
-    return Entity(int(msg.id), name, msg.class_name or "unknown", v, f, class_id=int(msg.class_id),
-                  category=ENTITY_CATEGORY.get(msg.category, ""), is_thing=bool(msg.is_thing),
-                  confidence=float(msg.confidence), revision=int(msg.revision))
-
-
 def box_to_msg(box: GravityBox | None) -> OrientedBoxMsg:
     if box is None:
         return oriented_box_msg(np.zeros(3), np.zeros(3), 0.0)
@@ -232,7 +218,7 @@ class ContactGraphNode(Node):
             if known and self.builder.features(int(e.id)).entity.revision == int(e.revision):
                 continue  # unchanged: skip the (costly) mesh conversion too
             try:
-                fresh.append(entity_from_msg(e))
+                fresh.append(msg_to_entity(e))
             except EntityError as exc:
                 self.counters["bad_entities"] += 1
                 self.get_logger().warning(str(exc), throttle_duration_sec=5.0)

@@ -14,6 +14,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from recon_core.entity import Entity
+from recon_core.errors import EntityError
 from recon_core.geometry.box_fit import fit_gravity_box
 
 CATEGORY = {"layout": PanopticEntity.CATEGORY_LAYOUT, "rigid": PanopticEntity.CATEGORY_RIGID,
@@ -77,10 +78,18 @@ def mesh_from_msg(msg: PanopticEntity) -> tuple[np.ndarray, np.ndarray]:
 
 
 def msg_to_entity(msg: PanopticEntity) -> Entity:
-    v, f = mesh_from_msg(msg)
-    return Entity(msg.id, msg.class_name, v, f, class_id=msg.class_id, instance_id=msg.instance_id,
-                  is_thing=msg.is_thing, category=CATEGORY_NAME.get(msg.category, "rigid"),
-                  confidence=msg.confidence, revision=msg.revision, num_voxels=len(v))
+    """A PanopticEntity (inline mesh, or a ``mesh_uri``) as the core entity; a bad mesh is an EntityError.
+
+    An unknown category is left empty so the contact-graph builder takes it from the class table.
+    """
+    try:
+        v, f = mesh_from_msg(msg)
+    except ValueError as exc:
+        raise EntityError(str(exc)) from exc
+    return Entity(int(msg.id), msg.class_name or "unknown", v, f, class_id=int(msg.class_id),
+                  instance_id=int(msg.instance_id), is_thing=bool(msg.is_thing),
+                  category=CATEGORY_NAME.get(msg.category, ""), confidence=float(msg.confidence),
+                  revision=int(msg.revision), num_voxels=len(v))
 
 
 def entity_color(entity_id: int) -> ColorRGBA:

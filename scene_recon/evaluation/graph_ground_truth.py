@@ -9,7 +9,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from recon_core.contact_graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
-from recon_core.geometry.box import GravityBox
 from scene_recon.synthetic.scene import ROOT, GroundTruthScene
 
 
@@ -19,7 +18,7 @@ def ground_truth_graph(scene: GroundTruthScene) -> ContactGraph:
     ids[ROOT] = ROOT_ID
     graph = ContactGraph(name=scene.name, nodes={ROOT_ID: root_node()})
     for e in scene.entities:
-        box = GravityBox.from_any(e.box) if e.box is not None else None
+        box = e.box
         graph.nodes[e.id] = GraphNode(e.id, e.name, e.class_name, e.category, e.class_id, box, box,
                                       movable=e.movable)
         graph.supports[e.id] = SupportEdge(ids[e.parent], e.id, "ground_truth", 1.0, 1.0, 0.0, None,

@@ -7,8 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from cad_replacement.cad import CadImportError, CadLibrary, build_model, load_class_table
+from cad_replacement.cad import CadLibrary, build_model
 from cad_replacement.cad import library as library_module
+from recon_core.classes import load_class_table
+from recon_core.errors import CadImportError
 
 
 def _count_computations(monkeypatch: pytest.MonkeyPatch) -> list[str]:

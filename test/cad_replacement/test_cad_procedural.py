@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from cad_replacement.cad import CLASS_BUILDERS, CadModel, UnknownClassError, build_model
+from cad_replacement.cad import CLASS_BUILDERS, CadModel, build_model
+from recon_core.errors import UnknownClassError
 
 SEEDS = range(10)
 ARTICULATED = ("fridge", "microwave", "cabinet", "oven", "dishwasher", "wardrobe")

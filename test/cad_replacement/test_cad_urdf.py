@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import yourdfpy
 
-from cad_replacement.cad import CadImportError, build_model, export_urdf, import_urdf_model, write_urdf
+from cad_replacement.cad import build_model, export_urdf, import_urdf_model, write_urdf
+from recon_core.errors import CadImportError
 from recon_core.geometry.transforms import rotation_about
 
 

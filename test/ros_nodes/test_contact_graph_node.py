@@ -120,7 +120,8 @@ def test_message_conversions_round_trip(tmp_path):
     from scene_recon_interfaces.msg import PanopticEntity
     from std_msgs.msg import Header
 
-    from ros_nodes.contact_graph_node import entity_from_msg, graph_from_msg, graph_markers, graph_to_msg
+    from ros_nodes.contact_graph_node import graph_from_msg, graph_markers, graph_to_msg
+    from ros_nodes.entity_conversions import msg_to_entity as entity_from_msg
     from scene_graph.builder import build_contact_graph
 
     msgs = [_entity_msg(1, "floor", [-2, -2, -0.05], [2, 2, 0], category=PanopticEntity.CATEGORY_LAYOUT),

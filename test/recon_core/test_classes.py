@@ -7,8 +7,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cad_replacement.cad import CLASS_BUILDERS, UNKNOWN_CLASS_ID, ConfigError, UnknownClassError, load_class_table
-from recon_core.classes import DEFAULT_CLASS_TABLE
+from cad_replacement.cad import CLASS_BUILDERS
+from recon_core.classes import DEFAULT_CLASS_TABLE, UNKNOWN_CLASS_ID, load_class_table
+from recon_core.errors import ConfigError, UnknownClassError
 
 
 def test_table_loads_and_covers_all_cad_classes() -> None:
