@@ -42,8 +42,10 @@ $(PKG_STAMP): setup.py setup.cfg package.xml $(REQ_STAMP)
 test: setup  ## run the test suite (pytest; real DDS on loopback)
 	$(ROS_ENV) $(PY) -m pytest -q
 
-lint:  ## ruff
+lint: setup  ## ruff, the layer contract (import-linter) and the type checker (mypy) over the core and the stages
 	$(VENV)/bin/ruff check .
+	$(VENV)/bin/lint-imports
+	$(VENV)/bin/mypy
 
 demo: setup  ## the main job on the embedded default scene
 	$(ROS_ENV) $(VENV)/bin/scene-recon demo --out $(DEMO_OUT)

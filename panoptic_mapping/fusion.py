@@ -204,7 +204,7 @@ def _cluster_instances(geo: np.ndarray, mask_of: np.ndarray, masks: PanopticMask
     """Keep only the largest 3D cluster of each thing instance's segments (in place on `mask_of`)."""
     removed = 0
     segs_by_mask: dict[int, list[int]] = {}
-    for g in np.flatnonzero(mask_of > 0):
+    for g in np.flatnonzero(mask_of > 0).tolist():
         m = int(mask_of[g])
         if masks.is_thing[m]:
             segs_by_mask.setdefault(m, []).append(int(g))
@@ -234,7 +234,7 @@ def _cluster_instances(geo: np.ndarray, mask_of: np.ndarray, masks: PanopticMask
                     parent[_find(parent, i)] = _find(parent, j)
         roots = np.array([_find(parent, i) for i in range(n)])
         sizes = {r: int(size_g[np.array(segs)[roots == r]].sum()) for r in set(roots.tolist())}
-        keep_root = max(sizes, key=sizes.get)
+        keep_root = max(sizes, key=lambda r: sizes[r])
         for i, g in enumerate(segs):
             if roots[i] != keep_root:
                 mask_of[g] = 0

@@ -16,8 +16,8 @@ def downsample_depth(depth: np.ndarray, factor: int, min_valid: int = 2) -> np.n
         return depth
     h, w = depth.shape
     h2, w2 = h // factor, w // factor
-    blocks = depth[: h2 * factor, : w2 * factor].reshape(h2, factor, w2, factor).transpose(0, 2, 1, 3)
-    blocks = blocks.reshape(h2, w2, factor * factor)
+    blocks = (depth[: h2 * factor, : w2 * factor].reshape(h2, factor, w2, factor).transpose(0, 2, 1, 3)
+              .reshape(h2, w2, factor * factor))
     valid = blocks > 0
     n = valid.sum(axis=2)
     total = np.where(valid, blocks, 0).sum(axis=2)

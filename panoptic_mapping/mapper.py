@@ -125,9 +125,9 @@ class PanopticMapper:
         world = cv2.transform(points.reshape(-1, 1, 3), frame.pose[:3, :].astype(np.float32)).reshape(-1, 3)
         segmented = bool(masks.labels.any())
         stride = max(1, cfg.association.pixel_stride)
-        sample = np.zeros(depth.shape, bool)
-        sample[::stride, ::stride] = True
-        sample = sample.ravel()
+        grid = np.zeros(depth.shape, bool)
+        grid[::stride, ::stride] = True
+        sample = grid.ravel()
         label_of_seg, new_labels, map_labels = self._associate(segs, world, sample, count_merges=segmented)
         t["association"] = time.perf_counter()
         if segmented:
@@ -154,7 +154,8 @@ class PanopticMapper:
         for k, v in t.items():
             timings[k] = (v - prev) * 1000
             prev = v
-        return FrameStats(masks.labels.any(), segs.count, new_labels, segs.num_split, segs.num_clustered_out, timings)
+        return FrameStats(bool(masks.labels.any()), segs.count, new_labels, segs.num_split, segs.num_clustered_out,
+                          timings)
 
     def _associate(self, segs: FrameSegments, world: np.ndarray, sample: np.ndarray,
                    count_merges: bool) -> tuple[np.ndarray, int, np.ndarray]:
@@ -427,7 +428,7 @@ class PanopticMapper:
         arrays.update({f"counts_{k}": v for k, v in self.counts.to_arrays().items()})
         mv = np.array([(a, b, n) for (a, b), n in self.merge_votes.items()], np.int64).reshape(-1, 3)
         arrays["merge_votes"] = mv
-        np.savez_compressed(folder / "map.npz", **arrays)
+        np.savez_compressed(folder / "map.npz", **arrays)  # type: ignore[arg-type]  # numpy's stub types **kwds as bool
         meta = {"format_version": MAP_FORMAT_VERSION, "config": asdict(self.config),
                 "frames_integrated": self.frames_integrated, "keyframes": self.keyframes,
                 "classes": {str(k): asdict(v) for k, v in self.classes.items()}}

@@ -32,7 +32,7 @@ class LabeledTSDF:
         self.vbg = o3d.t.geometry.VoxelBlockGrid(
             attr_names=("tsdf", "weight", "label", "conf"),
             attr_dtypes=(o3c.float32, o3c.float32, o3c.int32, o3c.int32),
-            attr_channels=((1), (1), (1), (1)),
+            attr_channels=((1), (1), (1), (1)),  # type: ignore[arg-type]  # ints are accepted
             voxel_size=self.vs, block_resolution=self.res, block_count=int(cfg.initial_block_count), device=_CPU,
         )
         self.label_conf_max = 64
@@ -196,7 +196,7 @@ class LabeledTSDF:
         self.vbg = o3d.t.geometry.VoxelBlockGrid(
             attr_names=("tsdf", "weight", "label", "conf"),
             attr_dtypes=(o3c.float32, o3c.float32, o3c.int32, o3c.int32),
-            attr_channels=((1), (1), (1), (1)),
+            attr_channels=((1), (1), (1), (1)),  # type: ignore[arg-type]  # ints are accepted
             voxel_size=self.vs, block_resolution=self.res,
             block_count=max(int(self.cfg.initial_block_count), 2 * len(keys)), device=_CPU,
         )

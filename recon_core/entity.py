@@ -26,6 +26,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from recon_core.errors import EntityError, InputError
+from recon_core.geometry.transforms import as_mesh
 from recon_core.io import write_text_atomic
 
 ENTITIES_FORMAT_VERSION = 1
@@ -146,7 +147,7 @@ def load_entities(folder: str | Path) -> list[Entity]:
         try:
             mesh_path = f.parent / d["mesh_file"]
             if mesh_path.is_file():
-                mesh = trimesh.load(mesh_path, force="mesh", process=False)
+                mesh = as_mesh(trimesh.load(mesh_path, force="mesh", process=False))
                 v, fc = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
             else:
                 v, fc = np.zeros((0, 3)), np.zeros((0, 3), np.int64)

@@ -77,7 +77,7 @@ def triangles_cover(points: NDArray[np.float64], triangles: NDArray[np.float64],
     # Zero-area triangles would accept every collinear point: drop them.
     area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
     inside &= np.abs(area2)[None, :] > EPS
-    return inside.any(axis=1)
+    return np.asarray(inside.any(axis=1), dtype=bool)
 
 
 def points_cover(grid: FootprintGrid, points_xy: NDArray[np.float64]) -> NDArray[np.bool_]:

@@ -76,9 +76,8 @@ def _smoothed_peak(values: NDArray, weights: NDArray, bin_size: float, circular_
         return float((centre + np.average(delta[near], weights=weights[near])) % period)
     lo = float(values.min())
     bins = np.floor((values - lo) / bin_size).astype(np.int64)
-    mass = np.bincount(bins, weights=weights)
-    kernel = np.convolve(mass, np.ones(2 * SMOOTH_BINS + 1), mode="same")
-    best = int(np.argmax(kernel))
+    smooth = np.convolve(np.bincount(bins, weights=weights), np.ones(2 * SMOOTH_BINS + 1), mode="same")
+    best = int(np.argmax(smooth))
     centre = lo + (best + 0.5) * bin_size
     near = np.abs(values - centre) <= (SMOOTH_BINS + 0.5) * bin_size
     return float(np.average(values[near], weights=weights[near]))

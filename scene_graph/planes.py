@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from recon_core.entity import Entity
+from recon_core.geometry.gravity import UP
 from recon_core.geometry.plane import Plane, SurfacePlane
 from recon_core.geometry.plane_fit import extract_planes
 from recon_core.geometry.polygon import EPS
@@ -68,7 +69,7 @@ def height_group_planes(entity: Entity, cfg: PlaneConfig, up_cos: float,
         if group_area < cfg.min_support_area:  # the heaviest group is too small: so is every later one
             break
         height = float(np.average(zr[member], weights=wr[member]))
-        planes.append(Plane(normal=[0.0, 0.0, 1.0], d=-height, area=group_area))
+        planes.append(Plane(normal=UP, d=-height, area=group_area))
     return planes
 
 

@@ -22,8 +22,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cad_replacement.cad.feature_types import Plane
 from recon_core.geometry.box import GravityBox
+from recon_core.geometry.gravity import UP
+from recon_core.geometry.plane import Plane
 from recon_core.geometry.polygon import EPS, polygon_distance
 from scene_graph.classify import LAYOUT
 from scene_graph.config import SupportConfig
@@ -204,7 +205,7 @@ class SupportInference:
             if ratio < cfg.b_th:
                 continue
             score = ratio  # Eq. (3) with D = 0: the plane is registered at the child's bottom
-            plane = SurfacePlane(Plane(normal=[0.0, 0.0, 1.0], d=-bottom, area=child.box.footprint_area),
+            plane = SurfacePlane(Plane(normal=UP, d=-bottom, area=child.box.footprint_area),
                                  "inferred", footprint_triangles(parent.box))
             out.append(SupportDecision(child.id, pid, "inferred_plane", score, ratio, 0.0, plane))
         return out
@@ -254,7 +255,7 @@ class SupportInference:
         if accepted:
             # Prefer planes that also meet Eq. (2) (A >= b_th), then the best Eq. (3) score.
             best = max(accepted, key=lambda d: (d.contact_ratio >= cfg.b_th, d.score, -abs(d.distance)))
-            if best.kind == "inferred_plane":
+            if best.kind == "inferred_plane" and best.plane is not None:
                 self.result.inferred_planes.setdefault(best.parent_id, []).append(best.plane)
             return best
         return self._fallback(child)

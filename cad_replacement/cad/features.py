@@ -24,6 +24,7 @@ from cad_replacement.cad.feature_types import ModelFeatures, SupportSurface
 from cad_replacement.cad.model import CadModel
 from recon_core.geometry.plane import SUPPORT_NORMAL_COS, merge_planes
 from recon_core.geometry.plane_fit import PLANE_DISTANCE, extract_planes
+from recon_core.geometry.transforms import as_mesh
 
 #: Support surfaces: smallest area (m^2), height tolerance when grouping faces (m).
 SUPPORT_MIN_AREA = 0.01
@@ -171,6 +172,6 @@ def model_mesh_features(model: CadModel, *, seed: int = 0) -> ModelFeatures:
     meshes = [(name, m) for name, m in posed.items() if len(m.faces)]
     if not meshes:
         raise ValueError(f"model {model.model_id!r} has no geometry")
-    whole = trimesh.util.concatenate([m for _, m in meshes])
+    whole = as_mesh(trimesh.util.concatenate([m for _, m in meshes]))
     face_links = np.concatenate([np.full(len(m.faces), name, dtype=object) for name, m in meshes])
     return mesh_features(whole, face_links=face_links, seed=seed)

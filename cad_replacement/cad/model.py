@@ -25,7 +25,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from cad_replacement.cad.feature_types import ModelFeatures
-from recon_core.geometry.transforms import invert_rigid, is_rigid, rotation_about, translation, unit
+from recon_core.geometry.transforms import as_mesh, invert_rigid, is_rigid, rotation_about, translation, unit
 
 JointType = Literal["revolute", "prismatic", "fixed"]
 JOINT_TYPES: tuple[str, ...] = ("revolute", "prismatic", "fixed")
@@ -166,7 +166,7 @@ class CadModel:
     # ------------------------------------------------------------------ structure
     @property
     def root_link(self) -> str:
-        return self._root  # type: ignore[attr-defined, no-any-return]
+        return self._root  # type: ignore[attr-defined]
 
     @property
     def size(self) -> NDArray[np.float64]:
@@ -230,7 +230,7 @@ class CadModel:
         meshes = [m for m in self.posed_link_meshes(joint_values).values() if len(m.faces)]
         if not meshes:
             return trimesh.Trimesh()
-        return trimesh.util.concatenate(meshes)
+        return as_mesh(trimesh.util.concatenate(meshes))
 
     def surface_motion(self, link: str, joint_values: Mapping[str, float] | None = None) -> NDArray[np.float64]:
         """Transform moving things attached to ``link`` from the closed to the given configuration.

@@ -88,7 +88,7 @@ def procedural_definition(
         "version": PROCEDURAL_VERSION,
         "class": class_name,
         "seed": _check_seed(seed),
-        "overrides": {k: overrides[k] for k in sorted(overrides or {})},
+        "overrides": {k: v for k, v in sorted((overrides or {}).items())},
         "target_size": None if target_size is None else _target(target_size).tolist(),
     }
 

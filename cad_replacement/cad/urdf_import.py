@@ -39,7 +39,7 @@ from cad_replacement.cad.feature_types import ModelFeatures
 from cad_replacement.cad.features import model_mesh_features
 from cad_replacement.cad.model import CadModel, Joint, Link, bounding_box_features
 from recon_core.errors import CadImportError
-from recon_core.geometry.transforms import is_rigid, rotation_from_axes, translation
+from recon_core.geometry.transforms import as_mesh, is_rigid, rotation_from_axes, translation
 from recon_core.names import sanitize_name, unique_names
 
 #: Largest URDF file accepted (bytes); PartNet files are a few kB.
@@ -228,7 +228,7 @@ def _link_meshes(urdf_model: yourdfpy.URDF, urdf: Path) -> dict[str, trimesh.Tri
             raise CadImportError(
                 f"{urdf}: visual geometry of link {lk.name!r} could not be loaded (empty or broken mesh)"
             )
-        out[lk.name] = trimesh.util.concatenate(meshes) if meshes else trimesh.Trimesh()
+        out[lk.name] = as_mesh(trimesh.util.concatenate(meshes)) if meshes else trimesh.Trimesh()
     return out
 
 

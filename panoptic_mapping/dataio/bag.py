@@ -205,7 +205,7 @@ class RosbagLoader:
                     self._add_info(msg)
                     continue
                 static = conn.topic == self.topics["tf_static"]
-                for tr in msg.transforms:
+                for tr in msg.transforms:  # type: ignore[attr-defined]  # a deserialised TFMessage
                     st = tr.header.stamp
                     t, q = tr.transform.translation, tr.transform.rotation
                     self.tf.add(
@@ -248,7 +248,7 @@ class RosbagLoader:
         colors: deque[_Pending] = deque()
         depths: deque[_Pending] = deque()
         labels: dict[int, _Pending] = {}
-        last = {color_t: None, depth_t: None, label_t: None}
+        last: dict[str, int | None] = {color_t: None, depth_t: None, label_t: None}
         newest_color = newest_label = newest = -(2**62)
         last_emitted = -(2**62)
         # A depth waits for a color stamped at or after it (a closer one may still come), but not

@@ -123,7 +123,7 @@ class RGBDBagWriter:
 
     def write_tf(self, stamp_ns: int, transforms: list[tuple[str, str, np.ndarray]], static: bool = False) -> None:
         msgs = [self.transform_msg(stamp_ns, p, c, T) for p, c, T in transforms]
-        msg = self.ts.types["tf2_msgs/msg/TFMessage"](transforms=msgs)
+        msg = self.ts.types["tf2_msgs/msg/TFMessage"](transforms=msgs)  # type: ignore[arg-type]
         topic = self.topics.tf_static if static else self.topics.tf
         self.write_msg(topic, "tf2_msgs/msg/TFMessage", msg, stamp_ns)
 

@@ -134,7 +134,7 @@ class _FolderLoader(abc.ABC):
                 depth, n_bad = sanitize_depth(raw.astype(np.float32) / np.float32(self.depth_scale))
                 h, w = depth.shape
                 frame = RGBDFrame(
-                    color=color, depth=depth, intrinsics=CameraIntrinsics(*self._k, width=w, height=h),
+                    color=color, depth=depth, intrinsics=CameraIntrinsics(*self._k[:4], width=w, height=h),  # type: ignore[misc, arg-type]
                     pose=pose, timestamp_ns=stamp, index=emitted, frame_id="camera", invalid_depth_pixels=n_bad,
                 )
             except DatasetError as exc:

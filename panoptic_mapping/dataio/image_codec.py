@@ -22,7 +22,7 @@ def _as_bytes_view(data: object) -> np.ndarray:
     """Zero-copy uint8 view of a message's `data` (numpy array, bytes, bytearray or array.array)."""
     if isinstance(data, np.ndarray):
         return data.view(np.uint8).reshape(-1)
-    return np.frombuffer(memoryview(data).cast("B"), dtype=np.uint8)
+    return np.frombuffer(memoryview(data).cast("B"), dtype=np.uint8)  # type: ignore[arg-type]  # any buffer
 
 
 def _rows(data: object, height: int, width: int, step: int, row_bytes: int, what: str) -> np.ndarray:
@@ -66,6 +66,7 @@ def decode_depth(
     encoding: str, height: int, width: int, step: int, data: object, is_bigendian: int = 0
 ) -> np.ndarray:
     """Return (H, W) float32 metres; invalid readings keep their value (see `sanitize_depth`)."""
+    dtype: np.dtype
     if encoding in ("16UC1", "mono16"):
         dtype = np.dtype(">u2" if is_bigendian else "<u2")
     elif encoding == "32FC1":

@@ -264,4 +264,4 @@ class TransformBuffer:
                     continue
                 lo = stamps[0] if lo is None else max(lo, stamps[0])
                 hi = stamps[-1] if hi is None else min(hi, stamps[-1])
-        return None if lo is None else (int(lo), int(hi))
+        return None if lo is None or hi is None else (int(lo), int(hi))

@@ -93,7 +93,7 @@ def input_size(cfg: PreprocessConfig, model_shape: list[object] | tuple[object, 
         raise SegmentationError(
             f"the model's input shape {dims} is dynamic; set preprocess.input_size: [width, height] in its config"
         )
-    return int(hw[1]), int(hw[0])
+    return int(hw[1]), int(hw[0])  # type: ignore[call-overload]  # dims checked to be static ints above
 
 
 def make_input(color_rgb: np.ndarray, cfg: PreprocessConfig, box: Letterbox) -> np.ndarray:

@@ -150,11 +150,10 @@ class OracleSegmenter(PanopticSegmenter):
                 stuff[info.id] = mask if info.id not in stuff else stuff[info.id].union(mask)
                 continue
             candidates.extend(self._spoil_thing(mask, info, depth, shape, scale, rng, happens))
-        for class_id, mask in stuff.items():
-            if nz.stuff_boundary_noise:
-                mask = self._boundary(mask, shape, scale, rng, happens)
-            if mask is not None:
-                candidates.append(SegmentCandidate(mask, self.table.by_id(class_id), self._score(rng, nz.score_mean)))
+        for class_id, stuff_mask in stuff.items():
+            kept = self._boundary(stuff_mask, shape, scale, rng, happens) if nz.stuff_boundary_noise else stuff_mask
+            if kept is not None:
+                candidates.append(SegmentCandidate(kept, self.table.by_id(class_id), self._score(rng, nz.score_mean)))
         for _ in range(rng.poisson(nz.spurious_rate * flicker) if nz.spurious_rate > 0 else 0):
             blob = random_blob(rng, shape, (nz.spurious_axes_px[0] * scale, nz.spurious_axes_px[1] * scale))
             info = self._thing_classes[int(rng.integers(len(self._thing_classes)))]
@@ -181,9 +180,10 @@ class OracleSegmenter(PanopticSegmenter):
             return []
         if info.confusable_with and happens(nz.confusion_prob):
             info = self.table.by_name(info.confusable_with[int(rng.integers(len(info.confusable_with)))])
-        mask = self._boundary(mask, shape, scale, rng, happens)
-        if mask is None:
+        noisy = self._boundary(mask, shape, scale, rng, happens)
+        if noisy is None:
             return []
+        mask = noisy
         if depth is not None and happens(nz.bleed_prob):
             radius = max(round(nz.bleed_radius_px * scale), 1)
             mask = bleed_onto_background(mask, depth, radius, nz.bleed_depth_gap_m)

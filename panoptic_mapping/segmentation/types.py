@@ -61,7 +61,8 @@ class PanopticSegmentation:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.labels.shape  # type: ignore[return-value]
+        h, w = self.labels.shape
+        return int(h), int(w)
 
     def segment(self, segment_id: int) -> Segment:
         for s in self.segments:

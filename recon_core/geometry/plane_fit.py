@@ -68,6 +68,7 @@ def extract_planes(
     of the mesh area (mesh input) or the inlier fraction (point input).
     """
     rng = np.random.default_rng(seed)
+    nrm: NDArray[np.float64] | None
     if isinstance(geometry, trimesh.Trimesh):
         pts, nrm = sample_mesh(geometry, sample_count, seed)
         total_area = float(geometry.area)

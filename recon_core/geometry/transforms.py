@@ -7,6 +7,7 @@ a pose ``T`` maps points from a child frame into its parent frame, ``p_parent = 
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 #: Norm below which a vector is treated as zero (guarded normalisation).
@@ -80,3 +81,15 @@ def rotation_from_axes(up: ArrayLike, front: ArrayLike) -> NDArray[np.float64]:
     if abs(float(u @ f)) > 1e-6:
         raise ValueError(f"up {u.tolist()} and front {f.tolist()} axes must be perpendicular")
     return np.stack([f, np.cross(u, f), u])
+
+
+def as_mesh(geometry: object) -> trimesh.Trimesh:
+    """``geometry`` as a triangle mesh: trimesh's loaders and concatenation are typed as returning any
+    geometry; a scene is flattened, anything else that is not a mesh is an error."""
+    if isinstance(geometry, trimesh.Trimesh):
+        return geometry
+    if isinstance(geometry, trimesh.Scene):
+        dumped = geometry.to_geometry()
+        if isinstance(dumped, trimesh.Trimesh):
+            return dumped
+    raise TypeError(f"expected a triangle mesh, got {type(geometry).__name__}")
