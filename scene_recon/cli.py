@@ -19,6 +19,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"scene-recon {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module in COMMANDS:
         module.add_parser(sub)
@@ -33,13 +34,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else logging.DEBUG
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-    from panoptic_mapping.segmentation.types import SegmentationError
-    from recon_core.config import ConfigError
-    from recon_core.frame import DatasetError
+    from recon_core.errors import SceneReconError
 
     try:
         return int(args.func(args) or 0)
-    except (DatasetError, ConfigError, SegmentationError, FileExistsError, FileNotFoundError) as exc:
+    except (SceneReconError, FileExistsError, FileNotFoundError) as exc:
+        # what the user must fix, in one line (the error family says where: input, config, model, storage)
+        if args.debug:
+            raise
         print(f"scene-recon {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # output piped into `head` and closed early
