@@ -24,7 +24,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
-from recon_core.geometry.transforms import EPS_NORM
+from recon_core.geometry.transforms import EPS_NORM, is_rigid, rotation_about, translation, unit
 from recon_core.io import write_text_atomic
 from recon_core.names import unique_names, urdf_name
 
@@ -79,25 +79,80 @@ class TreeLink:
     inertia: NDArray[np.float64] | None = None
 
 
-@dataclass
-class TreeJoint:
-    """A joint (URDF semantics): ``origin`` is the child joint frame in the parent link frame."""
+JointType = Literal["fixed", "floating", "revolute", "prismatic", "continuous"]
+
+
+@dataclass(frozen=True, eq=False)
+class Joint:
+    """One joint (URDF semantics), the only joint type of the project (CAD models and scenes).
+
+    ``origin`` maps the joint frame into the parent link frame; the child link frame is the joint
+    frame moved by the joint motion (rotation about / translation along ``axis``, in the joint
+    frame). Limits in rad (revolute) or m (prismatic) with ``lower < upper``; fixed and floating
+    joints have none (a floating joint keeps its child's pose in ``origin``), continuous joints
+    are unlimited.
+    """
 
     name: str
-    type: str
+    type: str  # one of JOINT_TYPES (checked at construction; data from files and graphs is plain text)
     parent: str
     child: str
     origin: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
     axis: NDArray[np.float64] = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     lower: float = 0.0
     upper: float = 0.0
-    value: float = 0.0  # current joint value (rad or m); floating joints keep their pose in `origin`
     effort: float = DEFAULT_EFFORT
     velocity: float = DEFAULT_VELOCITY
 
     def __post_init__(self) -> None:
         if self.type not in JOINT_TYPES:
-            raise ValueError(f"joint {self.name!r}: type {self.type!r} not in {JOINT_TYPES}")
+            raise ValueError(f"joint {self.name!r}: type must be one of {JOINT_TYPES}, got {self.type!r}")
+        if not self.name or not self.parent or not self.child:
+            raise ValueError(f"joint {self.name!r}: name, parent and child must be non-empty")
+        if self.parent == self.child:
+            raise ValueError(f"joint {self.name!r}: parent and child are both {self.parent!r}")
+        origin = np.array(self.origin, dtype=np.float64)
+        if not is_rigid(origin):
+            raise ValueError(f"joint {self.name!r}: origin must be a rigid 4x4 transform")
+        origin.setflags(write=False)
+        axis = unit(self.axis, f"joint {self.name!r} axis")
+        axis.setflags(write=False)
+        object.__setattr__(self, "origin", origin)
+        object.__setattr__(self, "axis", axis)
+        lower, upper = float(self.lower), float(self.upper)
+        if self.type in ("fixed", "floating", "continuous"):
+            lower = upper = 0.0
+        elif not (np.isfinite(lower) and np.isfinite(upper) and lower < upper):
+            raise ValueError(f"joint {self.name!r}: need finite limits lower < upper, got [{lower}, {upper}]")
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+
+    @property
+    def movable(self) -> bool:
+        """A joint with one degree of freedom driven by a joint value (floating joints are poses)."""
+        return self.type in ("revolute", "prismatic", "continuous")
+
+    @property
+    def zero_value(self) -> float:
+        """The closed/rest value: 0 clipped into the limits."""
+        return float(np.clip(0.0, self.lower, self.upper))
+
+    def clip(self, value: float) -> float:
+        if self.type == "continuous":
+            return float(value)
+        return float(np.clip(value, self.lower, self.upper))
+
+    def motion(self, value: float) -> NDArray[np.float64]:
+        """Transform of the child frame relative to the joint frame at joint value ``value``."""
+        if self.type in ("revolute", "continuous"):
+            return rotation_about(self.axis, value)
+        if self.type == "prismatic":
+            return translation(self.axis * value)
+        return np.eye(4)
+
+    def transform(self, value: float) -> NDArray[np.float64]:
+        """Child link pose in the parent link frame at ``value`` (clipped to the limits)."""
+        return self.origin @ self.motion(self.clip(value))
 
 
 def box_inertia(mass: float, extents: ArrayLike) -> NDArray[np.float64]:
@@ -111,23 +166,14 @@ class KinematicTree:
     name: str
     root: str
     links: list[TreeLink] = field(default_factory=list)
-    joints: list[TreeJoint] = field(default_factory=list)
-
-    @staticmethod
-    def motion(joint: TreeJoint, value: float) -> NDArray[np.float64]:
-        m = np.eye(4)
-        axis = np.asarray(joint.axis, dtype=np.float64)
-        axis = axis / max(float(np.linalg.norm(axis)), EPS_NORM)
-        if joint.type in ("revolute", "continuous"):
-            m[:3, :3] = trimesh.transformations.rotation_matrix(value, axis)[:3, :3]
-        elif joint.type == "prismatic":
-            m[:3, 3] = value * axis
-        return m
+    joints: list[Joint] = field(default_factory=list)
+    #: Current values of the movable joints (by joint name); missing ones are at their zero value.
+    joint_values: dict[str, float] = field(default_factory=dict)
 
     def link_poses(self, values: Mapping[str, float] | None = None) -> dict[str, NDArray[np.float64]]:
         """Forward kinematics: pose of every link in the root frame (values by joint name)."""
         values = values or {}
-        children: dict[str, list[TreeJoint]] = {}
+        children: dict[str, list[Joint]] = {}
         for j in self.joints:
             children.setdefault(j.parent, []).append(j)
         poses = {self.root: np.eye(4)}
@@ -135,8 +181,8 @@ class KinematicTree:
         while stack:
             parent = stack.pop()
             for j in children.get(parent, []):
-                q = values.get(j.name, j.value)
-                poses[j.child] = poses[parent] @ j.origin @ self.motion(j, q)
+                q = values.get(j.name, self.joint_values.get(j.name, j.zero_value))
+                poses[j.child] = poses[parent] @ j.transform(q)
                 stack.append(j.child)
         return poses
 
@@ -237,7 +283,7 @@ def _inertial_lines(link: TreeLink) -> list[str]:
     ]
 
 
-def _joint_lines(j: TreeJoint, name: str, link_names: Mapping[str, str]) -> list[str]:
+def _joint_lines(j: Joint, name: str, link_names: Mapping[str, str]) -> list[str]:
     lines = [f"  <joint name={quoteattr(name)} type={quoteattr(j.type)}>",
              f"    {origin_element(j.origin)}",
              f"    <parent link={quoteattr(link_names[j.parent])}/>",
@@ -256,8 +302,9 @@ __all__ = [
     "DEFAULT_EFFORT",
     "DEFAULT_VELOCITY",
     "JOINT_TYPES",
+    "Joint",
+    "JointType",
     "KinematicTree",
-    "TreeJoint",
     "TreeLink",
     "box_inertia",
     "format_number",

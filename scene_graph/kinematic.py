@@ -16,7 +16,7 @@ import trimesh
 
 from recon_core.contact_graph import ContactGraph
 from recon_core.entity import Entity
-from recon_core.kinematic_tree import KinematicTree, TreeJoint, TreeLink
+from recon_core.kinematic_tree import Joint, KinematicTree, TreeLink
 from scene_graph.classify import LAYOUT
 
 
@@ -50,7 +50,7 @@ def to_kinematic_tree(graph: ContactGraph, entities: Mapping[int, Entity] | None
         links.append(TreeLink(node.name, mesh, mass))
         edge = graph.supports[nid]
         origin = np.linalg.inv(poses[edge.parent_id]) @ poses[nid]
-        joints.append(TreeJoint(f"{names[edge.parent_id]}__to__{node.name}", edge.joint, names[edge.parent_id],
+        joints.append(Joint(f"{names[edge.parent_id]}__to__{node.name}", edge.joint, names[edge.parent_id],
                                 node.name, origin))
     tree = KinematicTree(graph.name or "scene", names[graph.root_id], links, joints)
     tree.validate()

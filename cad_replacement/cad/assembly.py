@@ -22,8 +22,9 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from cad_replacement.cad.feature_types import ModelFeatures, Plane, SupportSurface, merge_planes
-from cad_replacement.cad.model import CadModel, Joint, JointType, Link, ParamValue
+from cad_replacement.cad.model import CadModel, Joint, Link, ParamValue
 from recon_core.geometry.transforms import translation
+from recon_core.kinematic_tree import JointType
 
 #: Segments of every procedural cylinder; a multiple of 4 puts vertices on the +-x/+-y extremes,
 #: so mesh bounding boxes equal the analytic ones.

@@ -18,80 +18,19 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from cad_replacement.cad.feature_types import ModelFeatures
-from recon_core.geometry.transforms import as_mesh, invert_rigid, is_rigid, rotation_about, translation, unit
+from recon_core.geometry.transforms import as_mesh, invert_rigid, is_rigid
+from recon_core.kinematic_tree import Joint
 
-JointType = Literal["revolute", "prismatic", "fixed"]
-JOINT_TYPES: tuple[str, ...] = ("revolute", "prismatic", "fixed")
+#: Joint types a CAD model may contain (a scene adds floating joints for movable objects).
+CAD_JOINT_TYPES: tuple[str, ...] = ("revolute", "prismatic", "fixed")
 ParamValue = float | int | str
 RGBA = tuple[float, float, float, float]
-
-
-@dataclass(frozen=True, eq=False)
-class Joint:
-    """One joint (URDF semantics); limits in rad (revolute) or m (prismatic), ``lower < upper``."""
-
-    name: str
-    type: JointType
-    parent: str
-    child: str
-    origin: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
-    axis: NDArray[np.float64] = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
-    lower: float = 0.0
-    upper: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.type not in JOINT_TYPES:
-            raise ValueError(f"joint {self.name!r}: type must be one of {JOINT_TYPES}, got {self.type!r}")
-        if not self.name or not self.parent or not self.child:
-            raise ValueError(f"joint {self.name!r}: name, parent and child must be non-empty")
-        if self.parent == self.child:
-            raise ValueError(f"joint {self.name!r}: parent and child are both {self.parent!r}")
-        origin = np.array(self.origin, dtype=np.float64)
-        if not is_rigid(origin):
-            raise ValueError(f"joint {self.name!r}: origin must be a rigid 4x4 transform")
-        origin.setflags(write=False)
-        axis = unit(self.axis, f"joint {self.name!r} axis")
-        axis.setflags(write=False)
-        object.__setattr__(self, "origin", origin)
-        object.__setattr__(self, "axis", axis)
-        lower, upper = float(self.lower), float(self.upper)
-        if self.type == "fixed":
-            lower = upper = 0.0
-        elif not (np.isfinite(lower) and np.isfinite(upper) and lower < upper):
-            raise ValueError(f"joint {self.name!r}: need finite limits lower < upper, got [{lower}, {upper}]")
-        object.__setattr__(self, "lower", lower)
-        object.__setattr__(self, "upper", upper)
-
-    @property
-    def movable(self) -> bool:
-        return self.type != "fixed"
-
-    @property
-    def zero_value(self) -> float:
-        """The closed/rest value: 0 clipped into the limits."""
-        return float(np.clip(0.0, self.lower, self.upper))
-
-    def clip(self, value: float) -> float:
-        return float(np.clip(value, self.lower, self.upper))
-
-    def motion(self, value: float) -> NDArray[np.float64]:
-        """Transform of the child frame relative to the joint frame at joint value ``value``."""
-        if self.type == "revolute":
-            return rotation_about(self.axis, value)
-        if self.type == "prismatic":
-            return translation(self.axis * value)
-        return np.eye(4)
-
-    def transform(self, value: float) -> NDArray[np.float64]:
-        """Child link pose in the parent link frame at ``value`` (clipped to the limits)."""
-        return self.origin @ self.motion(self.clip(value))
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,6 +75,8 @@ class CadModel:
         known = set(names)
         children: dict[str, Joint] = {}
         for j in self.joints:
+            if j.type not in CAD_JOINT_TYPES:
+                raise ValueError(f"joint {j.name!r}: a CAD model's joints are {CAD_JOINT_TYPES}, got {j.type!r}")
             for end in (j.parent, j.child):
                 if end not in known:
                     raise ValueError(f"joint {j.name!r} refers to unknown link {end!r}")

@@ -12,6 +12,7 @@ that of the link's bounding box (paper-level fidelity; enough for a physics sani
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ import trimesh
 from cad_replacement.cad.model import CadModel
 from recon_core.classes import ClassTable, UnknownClassError, load_class_table
 from recon_core.io import write_text_atomic
-from recon_core.kinematic_tree import KinematicTree, MeshFormat, TreeJoint, TreeLink
+from recon_core.kinematic_tree import KinematicTree, MeshFormat, TreeLink
 from recon_core.names import sanitize_name
 
 #: Density (kg/m^3) for classes missing from the class table.
@@ -81,8 +82,8 @@ def model_tree(model: CadModel, density: float, name_prefix: str = "", robot_nam
     links = [TreeLink(name_prefix + lk.name, lk.mesh, max(link_volume(lk.mesh) * density, MIN_MASS),
                       None if lk.color is None else tuple(float(c) for c in lk.color))  # type: ignore[arg-type]
              for lk in model.links]
-    joints = [TreeJoint(name_prefix + j.name, j.type, name_prefix + j.parent, name_prefix + j.child,
-                        np.array(j.origin), np.array(j.axis), j.lower, j.upper) for j in model.joints]
+    joints = [dataclasses.replace(j, name=name_prefix + j.name, parent=name_prefix + j.parent,
+                                  child=name_prefix + j.child) for j in model.joints]
     return KinematicTree(sanitize_name(robot_name or model.model_id, "model"), name_prefix + model.root_link,
                          links, joints)
 

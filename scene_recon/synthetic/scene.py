@@ -22,7 +22,7 @@ from cad_replacement.cad.procedural import build_model
 from recon_core.classes import load_class_table
 from recon_core.entity import Entity
 from recon_core.geometry.box import GravityBox
-from recon_core.kinematic_tree import KinematicTree, TreeJoint, TreeLink
+from recon_core.kinematic_tree import Joint, KinematicTree, TreeLink
 from scene_recon.synthetic.items import Appearance, RenderItem
 from scene_recon.synthetic.layout import LayoutConfig, RoomLayout
 
@@ -97,6 +97,7 @@ class GroundTruthScene:
         table = load_class_table()
         links = [TreeLink(ROOT)]
         joints = []
+        values: dict[str, float] = {}
         link_pose: dict[str, np.ndarray] = {ROOT: np.eye(4)}
         models = {}
         for e in self.entities:  # parents come before children in `entities`
@@ -116,16 +117,16 @@ class GroundTruthScene:
                 for j in model.joints:
                     parent = e.name if j.parent == model.root_link else f"{e.name}__{j.parent}"
                     child = e.name if j.child == model.root_link else f"{e.name}__{j.child}"
-                    joints.append(TreeJoint(f"{e.name}__{j.name}", j.type, parent, child, np.array(j.origin),
-                                            np.array(j.axis), j.lower, j.upper,
-                                            float(e.joint_values.get(j.name, 0.0))))
+                    joints.append(Joint(f"{e.name}__{j.name}", j.type, parent, child, j.origin, j.axis, j.lower,
+                                        j.upper))
+                    values[f"{e.name}__{j.name}"] = float(e.joint_values.get(j.name, 0.0))
                 root_pose = e.pose
             parent_link = e.parent if not e.parent_link or models.get(e.parent) is None \
                 or e.parent_link == models[e.parent].root_link else f"{e.parent}__{e.parent_link}"
             origin = np.linalg.inv(link_pose[parent_link]) @ root_pose
             jtype = "floating" if e.movable else "fixed"
-            joints.append(TreeJoint(f"{parent_link}__to__{e.name}", jtype, parent_link, e.name, origin))
-        return KinematicTree(self.name, ROOT, links, joints)
+            joints.append(Joint(f"{parent_link}__to__{e.name}", jtype, parent_link, e.name, origin))
+        return KinematicTree(self.name, ROOT, links, joints, values)
 
     # ------------------------------------------------------------------ persistence
     def save(self, folder: str | Path) -> Path:
