@@ -62,21 +62,85 @@ def origin_element(transform: NDArray[np.float64]) -> str:
     return f"<origin xyz={quoteattr(format_vector(t[:3, 3]))} rpy={quoteattr(format_vector(rpy_of(t[:3, :3])))}/>"
 
 
+COLLISION_KINDS = ("box", "cylinder", "sphere", "mesh")
+
+
+@dataclass(frozen=True, eq=False)
+class CollisionShape:
+    """One collision element of a link (URDF ``<collision>``): a primitive or a convex mesh piece.
+
+    Simulators collide a mesh as its convex hull, so a concave part must arrive as several convex
+    pieces or primitives, never as one visual mesh. ``origin`` places the shape in the link frame;
+    a box has ``size`` (x, y, z), a cylinder ``radius`` and ``length`` along its z axis, a sphere
+    ``radius``; a mesh piece carries ``mesh`` (convex, in the shape frame).
+    """
+
+    kind: str
+    origin: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
+    size: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    radius: float = 0.0
+    length: float = 0.0
+    mesh: trimesh.Trimesh | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in COLLISION_KINDS:
+            raise ValueError(f"collision kind must be one of {COLLISION_KINDS}, got {self.kind!r}")
+        origin = np.array(self.origin, dtype=np.float64)
+        if not is_rigid(origin):
+            raise ValueError("collision origin must be a rigid 4x4 transform")
+        size = np.array(self.size, dtype=np.float64).reshape(3)
+        values = [*size, float(self.radius), float(self.length)]
+        if not all(math.isfinite(v) and v >= 0.0 for v in values):
+            raise ValueError(f"collision {self.kind}: sizes must be finite and non-negative, got {values}")
+        if self.kind == "box" and np.any(size <= 0.0):
+            raise ValueError(f"collision box needs a positive size, got {size.tolist()}")
+        if self.kind in ("cylinder", "sphere") and self.radius <= 0.0:
+            raise ValueError(f"collision {self.kind} needs a positive radius")
+        if self.kind == "cylinder" and self.length <= 0.0:
+            raise ValueError("collision cylinder needs a positive length")
+        if self.kind == "mesh" and (self.mesh is None or len(self.mesh.faces) == 0):
+            raise ValueError("collision mesh piece needs a non-empty mesh")
+        object.__setattr__(self, "origin", origin)
+        object.__setattr__(self, "size", size)
+
+
+@dataclass(frozen=True, eq=False)
+class Inertial:
+    """Mass (kg), centre of mass (link frame) and inertia tensor about the centre of mass (link axes)."""
+
+    mass: float
+    center_of_mass: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    inertia: NDArray[np.float64] = field(default_factory=lambda: np.eye(3) * 1e-6)
+
+    def __post_init__(self) -> None:
+        com = np.array(self.center_of_mass, dtype=np.float64).reshape(3)
+        inertia = np.array(self.inertia, dtype=np.float64).reshape(3, 3)
+        if not (math.isfinite(self.mass) and self.mass > 0.0):
+            raise ValueError(f"mass must be positive and finite, got {self.mass}")
+        if not (np.all(np.isfinite(com)) and np.all(np.isfinite(inertia))):
+            raise ValueError("centre of mass and inertia must be finite")
+        if not np.allclose(inertia, inertia.T, atol=1e-12) or np.linalg.eigvalsh(inertia).min() < 0.0:
+            raise ValueError("inertia must be symmetric positive semi-definite")
+        object.__setattr__(self, "center_of_mass", com)
+        object.__setattr__(self, "inertia", inertia)
+
+
 @dataclass
 class TreeLink:
-    """A rigid body; ``mesh`` (visual and collision) is expressed in the link frame.
+    """A rigid body; ``mesh`` (the visual) is expressed in the link frame.
 
-    ``mass`` 0 means massless (layout, fixed world parts: no inertial is written). The inertia is
-    that of the mesh's bounding box about its centre unless ``inertia`` (3x3, about
-    ``center_of_mass``) is given.
+    ``collisions``: the collision elements; ``None`` uses the visual mesh (acceptable only for
+    convex parts). ``mass`` 0 means massless (layout, fixed world parts: no inertial is written);
+    ``inertial`` gives the full inertial, otherwise the inertia is that of the mesh's bounding box
+    about its centre.
     """
 
     name: str
     mesh: trimesh.Trimesh | None = None
     mass: float = 0.0
     rgba: RGBA | None = (0.7, 0.7, 0.7, 1.0)
-    center_of_mass: NDArray[np.float64] | None = None
-    inertia: NDArray[np.float64] | None = None
+    collisions: tuple[CollisionShape, ...] | None = None
+    inertial: Inertial | None = None
 
 
 JointType = Literal["fixed", "floating", "revolute", "prismatic", "continuous"]
@@ -250,32 +314,47 @@ def _link_lines(link: TreeLink, name: str, out: Path, uri_prefix: str, mesh_form
             material = (f"<material name={quoteattr(name + '_material')}>"
                         f"<color rgba={quoteattr(format_vector(link.rgba))}/></material>")
         lines.append(f'    <visual><origin xyz="0 0 0" rpy="0 0 0"/>{geometry}{material}</visual>')
-        lines.append(f'    <collision><origin xyz="0 0 0" rpy="0 0 0"/>{geometry}</collision>')
-    if link.mass > 0.0:
+        if link.collisions is None:
+            lines.append(f'    <collision><origin xyz="0 0 0" rpy="0 0 0"/>{geometry}</collision>')
+    for k, shape in enumerate(link.collisions or ()):
+        lines.append(_collision_line(shape, f"{name}_collision_{k}", out, uri_prefix, mesh_format))
+    if link.inertial is not None or link.mass > 0.0:
         lines.extend(_inertial_lines(link))
     lines.append("  </link>")
     return lines
 
 
+def _collision_line(shape: CollisionShape, file_stem: str, out: Path, uri_prefix: str, mesh_format: str) -> str:
+    n = format_number
+    if shape.kind == "box":
+        geometry = f"<box size={quoteattr(format_vector(shape.size))}/>"
+    elif shape.kind == "cylinder":
+        geometry = f"<cylinder radius={quoteattr(n(shape.radius))} length={quoteattr(n(shape.length))}/>"
+    elif shape.kind == "sphere":
+        geometry = f"<sphere radius={quoteattr(n(shape.radius))}/>"
+    else:
+        assert shape.mesh is not None  # checked by CollisionShape
+        fname = f"{file_stem}.{mesh_format}"
+        shape.mesh.export(out / fname, file_type=mesh_format)
+        geometry = f"<mesh filename={quoteattr(uri_prefix + fname)}/>"
+    return f"    <collision>{origin_element(shape.origin)}<geometry>{geometry}</geometry></collision>"
+
+
 def _inertial_lines(link: TreeLink) -> list[str]:
     mesh = link.mesh
-    if link.center_of_mass is not None:
-        center = np.asarray(link.center_of_mass, dtype=np.float64)
-    elif mesh is not None and len(mesh.vertices):
-        lo, hi = mesh.bounds
+    if link.inertial is not None:
+        mass, center, inertia = link.inertial.mass, link.inertial.center_of_mass, link.inertial.inertia
+    else:
+        mass = link.mass
+        has_mesh = mesh is not None and len(mesh.vertices) > 0
+        lo, hi = (mesh.bounds if mesh is not None and has_mesh else (np.zeros(3), np.zeros(3)))
         center = 0.5 * (lo + hi)
-    else:
-        center = np.zeros(3)
-    if link.inertia is not None:
-        inertia = np.asarray(link.inertia, dtype=np.float64).reshape(3, 3)
-    else:
-        extents = (mesh.bounds[1] - mesh.bounds[0]) if mesh is not None and len(mesh.vertices) else np.zeros(3)
-        inertia = box_inertia(link.mass, extents)
+        inertia = box_inertia(mass, hi - lo)
     n = format_number
     return [
         "    <inertial>",
         f'      <origin xyz={quoteattr(format_vector(center))} rpy="0 0 0"/>',
-        f"      <mass value={quoteattr(n(link.mass))}/>",
+        f"      <mass value={quoteattr(n(mass))}/>",
         f"      <inertia ixx={quoteattr(n(inertia[0, 0]))} ixy={quoteattr(n(inertia[0, 1]))}"
         f" ixz={quoteattr(n(inertia[0, 2]))} iyy={quoteattr(n(inertia[1, 1]))} iyz={quoteattr(n(inertia[1, 2]))}"
         f" izz={quoteattr(n(inertia[2, 2]))}/>",
@@ -299,9 +378,12 @@ def _joint_lines(j: Joint, name: str, link_names: Mapping[str, str]) -> list[str
 
 
 __all__ = [
+    "COLLISION_KINDS",
     "DEFAULT_EFFORT",
     "DEFAULT_VELOCITY",
     "JOINT_TYPES",
+    "CollisionShape",
+    "Inertial",
     "Joint",
     "JointType",
     "KinematicTree",

@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cad_replacement.cad.feature_types import ModelFeatures
 from recon_core.geometry.transforms import as_mesh, invert_rigid, is_rigid
-from recon_core.kinematic_tree import Joint
+from recon_core.kinematic_tree import CollisionShape, Inertial, Joint
 
 #: Joint types a CAD model may contain (a scene adds floating joints for movable objects).
 CAD_JOINT_TYPES: tuple[str, ...] = ("revolute", "prismatic", "fixed")
@@ -35,11 +35,18 @@ RGBA = tuple[float, float, float, float]
 
 @dataclass(frozen=True, eq=False)
 class Link:
-    """A rigid part; ``mesh`` is expressed in the link frame (procedural links are watertight)."""
+    """A rigid part; ``mesh`` is expressed in the link frame (procedural links are watertight).
+
+    ``collisions`` (primitives or convex pieces in the link frame) and ``inertial`` are optional:
+    procedural builders know their primitives, imported assets may carry both; an exporter
+    derives what is missing.
+    """
 
     name: str
     mesh: trimesh.Trimesh
     color: RGBA | None = None
+    collisions: tuple[CollisionShape, ...] | None = None
+    inertial: Inertial | None = None
 
     def __post_init__(self) -> None:
         if not self.name:

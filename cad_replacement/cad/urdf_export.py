@@ -80,7 +80,8 @@ def export_urdf(
 def model_tree(model: CadModel, density: float, name_prefix: str = "", robot_name: str | None = None) -> KinematicTree:
     """The model as a kinematic tree at its closed configuration (names prefixed for scene merging)."""
     links = [TreeLink(name_prefix + lk.name, lk.mesh, max(link_volume(lk.mesh) * density, MIN_MASS),
-                      None if lk.color is None else tuple(float(c) for c in lk.color))  # type: ignore[arg-type]
+                      None if lk.color is None else tuple(float(c) for c in lk.color),  # type: ignore[arg-type]
+                      collisions=lk.collisions, inertial=lk.inertial)
              for lk in model.links]
     joints = [dataclasses.replace(j, name=name_prefix + j.name, parent=name_prefix + j.parent,
                                   child=name_prefix + j.child) for j in model.joints]
