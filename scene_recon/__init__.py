@@ -1,8 +1,9 @@
-"""scene_recon: RGB-D stream to an interactive, kinematic scene.
+"""scene_recon tools: the top layer above the stages (ROS-free).
 
-The umbrella package holds what every stage shares and is ROS-free: the configuration schema
-machinery (`scene_recon.config`), the synthetic world used for evaluation (`scene_recon.synthetic`)
-and the `scene-recon` command line (`scene_recon.cli`).
+The `scene-recon` command line (`scene_recon.cli`, `scene_recon.commands`), the synthetic world
+used for testing and evaluation (`scene_recon.synthetic`), evaluation against ground truth
+(`scene_recon.evaluation`) and entity sources (`scene_recon.sources`). Shared types and the
+configuration machinery live in `recon_core`; see docs/ARCHITECTURE.md.
 """
 
 __version__ = "0.1.0"

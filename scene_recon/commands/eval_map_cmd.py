@@ -37,7 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--classes", nargs="+", metavar="CLASS",
                    help="evaluate only these classes; 'paper' = the paper's 10 classes "
                    f"({', '.join(PAPER_CLASSES)})")
-    g = p.add_argument_group("protocol (defaults: panoptic_mapping.metrics.MetricsConfig)")
+    g = p.add_argument_group("protocol (defaults: scene_recon.evaluation.map_metrics.MetricsConfig)")
     for flag, name, kind, text in _PROTOCOL_OPTIONS:
         g.add_argument(flag, type=kind, dest=name, metavar="X", help=f"{text} (default: {_default(name)})")
     p.set_defaults(func=run)

@@ -16,7 +16,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="build the contact graph (supports, proximal relations, boxes) of a scene",
         description="Build the contact graph (paper Sec. 2) of a ground-truth folder (*_groundtruth/ with "
         "scene.json: complete meshes, the paper's cg_map setting) or of a mapped-scene folder (entities.json + "
-        "meshes/<id>.ply, see scene_graph/scene_io.py). Prints the parse tree (class, support score, joint) and "
+        "meshes/<id>.ply, see recon_core/entity.py). Prints the parse tree (class, support score, joint) and "
         "writes contact_graph.json and contact_graph.png (top-down boxes + tree) into --out.",
     )
     p.add_argument("source", help="ground-truth folder (scene.json) or mapped-scene folder (entities.json)")

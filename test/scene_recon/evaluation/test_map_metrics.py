@@ -1,4 +1,4 @@
-"""3D panoptic quality / instance mAP (panoptic_mapping.metrics) on cases with known answers."""
+"""3D panoptic quality / instance mAP (scene_recon.evaluation.map_metrics) on cases with known answers."""
 
 from __future__ import annotations
 
