@@ -7,7 +7,8 @@ Two settings, as in the paper's cg_map column plus an honest variant:
   are missing detections) and against the ground truth restricted to the seen entities (how well
   the graph is inferred from what was seen).
 
-    .venv/bin/python -m scene_recon.evaluation.graph_evaluation [--seeds 20] [--recordings 4] [--out out/scene_graph_eval]
+    .venv/bin/python -m scene_recon.evaluation.graph_evaluation [--seeds 20] [--recordings 4] \
+        [--out out/scene_graph_eval]
 """
 
 from __future__ import annotations
