@@ -305,6 +305,12 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: dict[st
         if not isinstance(loaded, dict):
             raise ConfigError(f"{path}: top level must be a mapping of keys to values")
         data = loaded
+    return build_config(cls, data, overrides)
+
+
+def build_config(cls: type[T], data: dict[str, Any], overrides: dict[str, Any] | None = None) -> T:
+    """`cls` from nested plain data plus dotted overrides, converted and checked (`from_dict`, then
+    `validate` on the whole tree): the one path by which files, CLI options and ROS parameters enter."""
     if overrides:
         data = _merge(data, unflatten(overrides))
     obj = from_dict(cls, data)
