@@ -25,9 +25,11 @@ def generate_launch_description() -> LaunchDescription:
     ]
     segmentation = Node(
         package="scene_recon", executable="segmentation_service", name="segmentation_service", output="screen",
-        parameters=[{"backend": LaunchConfiguration("backend"), "model_config": LaunchConfiguration("model_config"),
-                     "ground_truth": LaunchConfiguration("ground_truth"),
-                     "noise_level": LaunchConfiguration("noise_level")}],
+        # parameter names are the dotted keys of config/segmentation.yaml (ros_nodes/parameters.py)
+        parameters=[{"backend": LaunchConfiguration("backend"),
+                     "onnx.model_config": LaunchConfiguration("model_config"),
+                     "oracle.ground_truth": LaunchConfiguration("ground_truth"),
+                     "oracle.level": LaunchConfiguration("noise_level")}],
     )
     mapper = Node(
         package="scene_recon", executable="panoptic_mapper", name="panoptic_mapper", output="screen",

@@ -4,15 +4,24 @@ Every stage describes its tunables as a (nested) dataclass with documented defau
 in `config/` hold the same keys. `load_config` reads a YAML file into the dataclass, rejecting
 unknown keys (a typo must not silently fall back to a default); `flatten`/`unflatten` map the
 nested structure to the dotted names used for ROS 2 parameters (`sync.slop_s`).
+
+Validation is written once, here: a field declared with `setting(default, min=..., max=...,
+choices=...)` carries its accepted range as field metadata, and the same rule is applied wherever a
+value enters a config: `from_dict` (file, CLI overrides, ROS parameters; errors name the dotted key),
+`validate` (the whole tree, after loading) and `Settings.__post_init__` (objects built in code).
+Only cross-field conditions that a per-field range cannot say stay in a class's own
+`__post_init__` (which calls `super().__post_init__()` first).
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import importlib.resources
 import os
 import types
 import typing
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -50,6 +59,98 @@ def config_file(name: str) -> Path:
         raise ConfigError(f"default configuration {name!r} not found in {CONFIG_DIR}: reinstall the package "
                           f"or set {CONFIG_DIR_ENV} to a folder holding it")
     return path
+
+
+#: Field-metadata key under which `setting` stores a field's `Rule`.
+RULE_KEY = "scene_recon.rule"
+
+
+def _fmt(x: Any) -> str:
+    return f"{x:g}" if isinstance(x, float) else repr(x) if isinstance(x, str) else str(x)
+
+
+@dataclasses.dataclass(frozen=True)
+class Rule:
+    """Accepted values of one setting; applied to each element when the value is a list or a mapping."""
+
+    min: float | None = None
+    max: float | None = None
+    min_exclusive: bool = False
+    max_exclusive: bool = False
+    choices: tuple[Any, ...] | None = None
+    doc: str = ""
+
+    def describe(self) -> str:
+        """The accepted values in words ("in [0, 1]", ">= 1", "one of ['full', 'baseline']"); "" when any."""
+        if self.choices is not None:
+            return f"one of {list(self.choices)}"
+        if self.min is not None and self.max is not None:
+            return (f"in {'(' if self.min_exclusive else '['}{_fmt(self.min)}, "
+                    f"{_fmt(self.max)}{')' if self.max_exclusive else ']'}")
+        if self.min is not None:
+            return f"{'>' if self.min_exclusive else '>='} {_fmt(self.min)}"
+        if self.max is not None:
+            return f"{'<' if self.max_exclusive else '<='} {_fmt(self.max)}"
+        return ""
+
+    def check(self, value: Any, where: str) -> None:
+        """Raise `ConfigError` naming `where` and the accepted values when `value` is outside them."""
+        if isinstance(value, (list, tuple)):
+            for i, item in enumerate(value):
+                self.check(item, f"{where}[{i}]")
+            return
+        if isinstance(value, dict):
+            for key, item in value.items():
+                self.check(item, f"{where}.{key}")
+            return
+        if self.choices is not None:
+            if value not in self.choices:
+                raise ConfigError(f"{where}: got {value!r}; valid values: {list(self.choices)}")
+            return
+        if self.min is None and self.max is None:
+            return
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number {self.describe()}, got {value!r}")
+        too_low = self.min is not None and (value <= self.min if self.min_exclusive else value < self.min)
+        too_high = self.max is not None and (value >= self.max if self.max_exclusive else value > self.max)
+        if too_low or too_high:
+            raise ConfigError(f"{where}: got {_fmt(value)}; allowed: {self.describe()}")
+
+
+def setting(default: Any = dataclasses.MISSING, *, default_factory: Any = dataclasses.MISSING,
+            min: float | None = None, max: float | None = None,
+            min_exclusive: bool = False, max_exclusive: bool = False,
+            choices: Sequence[Any] | None = None, doc: str = "") -> Any:
+    """A dataclass field whose accepted values travel with it (see `Rule`).
+
+    A mutable default (list, dict) is copied per instance, so `setting([1, 2], min=1)` is safe. `doc`
+    is a one-line description (shown as the ROS parameter's description).
+    """
+    if isinstance(default, (list, dict)):
+        default_factory, default = (lambda d=default: copy.deepcopy(d)), dataclasses.MISSING
+    rule = Rule(min, max, min_exclusive, max_exclusive, tuple(choices) if choices is not None else None, doc)
+    return dataclasses.field(default=default, default_factory=default_factory, metadata={RULE_KEY: rule})
+
+
+def field_rule(f: dataclasses.Field) -> Rule | None:
+    """The `Rule` of a dataclass field, or None for a field declared without `setting`."""
+    return f.metadata.get(RULE_KEY)
+
+
+class Settings:
+    """Base of config dataclasses: construction checks every field's `Rule`.
+
+    Objects built in code (`OracleNoiseConfig(miss_prob=1.5)`, presets) are checked the same way as
+    loaded ones. A subclass with a cross-field condition overrides `__post_init__` and calls
+    `super().__post_init__()` first.
+    """
+
+    def __post_init__(self) -> None:
+        name = type(self).__name__
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            rule = field_rule(f)
+            if rule is not None:
+                rule.check(getattr(self, f.name), f"{name}.{f.name}")
 
 
 def _convert(value: Any, annotation: Any, where: str) -> Any:
@@ -103,16 +204,88 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
 
 
 def from_dict(cls: type[T], data: dict[str, Any], where: str = "") -> T:
-    """Build dataclass `cls` from a mapping, converting nested mappings and checking types."""
+    """Build dataclass `cls` from a mapping, converting nested mappings and checking types and rules.
+
+    Every given value is checked against its field's type and `Rule` before the object is built, so
+    an error names the dotted key (`oracle.levels.hard.miss_prob`), not only the class.
+    """
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
-    unknown = sorted(set(data) - names)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - set(fields))
     if unknown:
         raise ConfigError(
-            f"{where or cls.__name__}: unknown key(s) {unknown}; valid keys are {sorted(names)}"
+            f"{where or cls.__name__}: unknown key(s) {unknown}; valid keys are {sorted(fields)}"
         )
-    kwargs = {k: _convert(v, hints[k], f"{where + '.' if where else ''}{k}") for k, v in data.items()}
-    return cls(**kwargs)
+    kwargs = {}
+    for key, value in data.items():
+        name = f"{where + '.' if where else ''}{key}"
+        kwargs[key] = _convert(value, hints[key], name)
+        rule = field_rule(fields[key])
+        if rule is not None:
+            rule.check(kwargs[key], name)
+    try:
+        return cls(**kwargs)
+    except ConfigError as exc:  # a cross-field condition of `__post_init__`: say where the object sits
+        if not where:
+            raise
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def validate(obj: Any, where: str = "") -> None:
+    """Check a whole config tree: every field's type and `Rule`, nested dataclasses, mappings and lists
+    of them, and each class's cross-field `__post_init__` conditions. Raises `ConfigError` naming the
+    dotted key. Catches what construction cannot: values assigned after the object was built."""
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        name = f"{where + '.' if where else ''}{f.name}"
+        value = getattr(obj, f.name)
+        _convert(value, hints[f.name], name)  # type check only; the converted copy is not kept
+        rule = field_rule(f)
+        if rule is not None:
+            rule.check(value, name)
+        if isinstance(value, dict):
+            children = [(f"{name}.{k}", v) for k, v in value.items()]
+        elif isinstance(value, (list, tuple)):
+            children = [(f"{name}[{i}]", v) for i, v in enumerate(value)]
+        else:
+            children = [(name, value)]
+        for child_name, child in children:
+            if dataclasses.is_dataclass(child) and not isinstance(child, type):
+                validate(child, child_name)
+    post_init = getattr(obj, "__post_init__", None)
+    if post_init is not None:
+        try:
+            post_init()
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}" if where else str(exc)) from None
+
+
+@dataclasses.dataclass(frozen=True)
+class SettingInfo:
+    """One leaf of a config tree: its dotted key, declared type, current value and rule."""
+
+    key: str
+    annotation: Any
+    value: Any
+    rule: Rule | None
+
+
+def iter_settings(obj: Any, prefix: str = "") -> Iterator[SettingInfo]:
+    """The leaves of a config tree in declaration order, with the dotted keys `flatten` would give.
+
+    Nested dataclasses and mappings of dataclasses (the oracle's noise `levels`) are walked into,
+    so the keys are exactly those of the YAML file; everything else is a leaf.
+    """
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        key, value = f"{prefix}{f.name}", getattr(obj, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            yield from iter_settings(value, key + ".")
+        elif isinstance(value, dict) and value and all(dataclasses.is_dataclass(v) for v in value.values()):
+            for name, child in value.items():
+                yield from iter_settings(child, f"{key}.{name}.")
+        else:
+            yield SettingInfo(key, hints[f.name], value, field_rule(f))
 
 
 def to_dict(obj: Any) -> dict[str, Any]:
@@ -132,9 +305,17 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: dict[st
         if not isinstance(loaded, dict):
             raise ConfigError(f"{path}: top level must be a mapping of keys to values")
         data = loaded
+    return build_config(cls, data, overrides)
+
+
+def build_config(cls: type[T], data: dict[str, Any], overrides: dict[str, Any] | None = None) -> T:
+    """`cls` from nested plain data plus dotted overrides, converted and checked (`from_dict`, then
+    `validate` on the whole tree): the one path by which files, CLI options and ROS parameters enter."""
     if overrides:
         data = _merge(data, unflatten(overrides))
-    return from_dict(cls, data)
+    obj = from_dict(cls, data)
+    validate(obj)
+    return obj
 
 
 def dump_config(obj: Any, path: str | Path) -> None:

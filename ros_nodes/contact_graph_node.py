@@ -6,9 +6,10 @@ planes), ``removed_ids`` are dropped, then the relations are rebuilt over all no
 Outputs (latched, so RViz and late joiners get the current graph): ``contact_graph``
 (scene_recon_interfaces/ContactGraph) and ``contact_graph_markers`` (visualization_msgs/MarkerArray:
 boxes as LINE_LIST, supporting planes as thin CUBEs, support arrows parent -> child, labels).
-The frame id is the entity array's. Parameters: ``config_file`` / ``joints_file`` (YAML, empty:
-the repository defaults), ``min_period_s`` (rebuild at most this often), ``snapshot`` (true: an
-entity missing from a message is dropped too, not only those in ``removed_ids``).
+The frame id is the entity array's. Parameters: ``config_file`` (the builder YAML, empty:
+config/scene_graph.yaml), every key of that file under its dotted name (``support.a_th``,
+``proximal.broadphase``, ``support_joints`` for the joint table, ...; see ``ros_nodes.parameters``),
+and the node's own settings, ``ContactGraphNodeConfig`` (topics, ``min_period_s``, ``snapshot``).
 
 The message conversions live here too (the only ROS-facing code of the contact graph).
 """
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from geometry_msgs.msg import Point, Quaternion, Vector3
@@ -30,17 +32,19 @@ from shape_msgs.msg import Plane as PlaneMsg
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
+from recon_core.config import Settings, setting
 from recon_core.contact_graph import SCENE, ContactGraph, GraphNode, SupportEdge
 from recon_core.entity import EntityError
 from recon_core.geometry.box import GravityBox
 from recon_core.geometry.plane import Plane, SurfacePlane
 from ros_nodes.entity_conversions import msg_to_entity, oriented_box_msg
+from ros_nodes.parameters import declare_config, declare_config_file
 from ros_nodes.qos import ENTITIES as ENTITIES_QOS
 from ros_nodes.qos import LATCHED
 from ros_nodes.runner import run_node
 from scene_graph.builder import ContactGraphBuilder
 from scene_graph.classify import ARTICULATED, LAYOUT, RIGID
-from scene_graph.config import load_scene_graph_config
+from scene_graph.config import DEFAULT_CONFIG_FILE, SceneGraphConfig
 from scene_graph.joints import load_support_joints
 
 NODE_TYPE = {SCENE: ContactGraphNodeMsg.TYPE_SCENE, LAYOUT: ContactGraphNodeMsg.TYPE_LAYOUT,
@@ -186,20 +190,29 @@ def graph_markers(graph: ContactGraph, header: Header) -> MarkerArray:
 
 
 # ---------------------------------------------------------------------------------------------- node
+@dataclass
+class ContactGraphNodeConfig(Settings):
+    """ROS-side settings of the contact-graph node; the builder itself is `SceneGraphConfig`."""
+
+    entities_topic: str = setting("panoptic_entities", doc="PanopticEntityArray input (the mapper's output)")
+    graph_topic: str = setting("contact_graph", doc="ContactGraph output (latched)")
+    markers_topic: str = setting("contact_graph_markers", doc="MarkerArray output (latched)")
+    min_period_s: float = setting(0.0, min=0.0, doc="rebuild the graph at most this often (s)")
+    snapshot: bool = setting(False, doc="an entity missing from a message is dropped too, not only removed_ids")
+
+
 class ContactGraphNode(Node):
     def __init__(self) -> None:
         super().__init__("contact_graph")
-        p = self.declare_parameter
-        cfg = load_scene_graph_config(p("config_file", "").value or None)
-        joints = load_support_joints(p("joints_file", "").value or cfg.support_joints or None)
-        self.min_period_s = float(p("min_period_s", 0.0).value)
-        self.snapshot = bool(p("snapshot", False).value)
+        cfg = declare_config(self, SceneGraphConfig, declare_config_file(self, DEFAULT_CONFIG_FILE))
+        settings = declare_config(self, ContactGraphNodeConfig)
+        joints = load_support_joints(cfg.support_joints or None)
+        self.min_period_s = settings.min_period_s
+        self.snapshot = settings.snapshot
         self.builder = ContactGraphBuilder(cfg, joints)
-        self.pub_graph = self.create_publisher(ContactGraphMsg, p("graph_topic", "contact_graph").value, LATCHED)
-        self.pub_markers = self.create_publisher(MarkerArray, p("markers_topic", "contact_graph_markers").value,
-                                                 LATCHED)
-        self.create_subscription(PanopticEntityArray, p("entities_topic", "panoptic_entities").value,
-                                 self._on_entities, ENTITIES_QOS)
+        self.pub_graph = self.create_publisher(ContactGraphMsg, settings.graph_topic, LATCHED)
+        self.pub_markers = self.create_publisher(MarkerArray, settings.markers_topic, LATCHED)
+        self.create_subscription(PanopticEntityArray, settings.entities_topic, self._on_entities, ENTITIES_QOS)
         self.counters = {"messages": 0, "rebuilt_entities": 0, "builds": 0, "bad_entities": 0}
         self._header: Header | None = None
         self._dirty = False

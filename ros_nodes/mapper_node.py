@@ -6,6 +6,10 @@ a slow or dead service never blocks integration — other frames keep integratin
 keyframe whose answer does not come within `segmentation_timeout_s` integrates without labels.
 Outputs: `panoptic_entities` (PanopticEntityArray) and `panoptic_map_markers` (MarkerArray) at
 `publish_period_s` when the map changed; services save_map / load_map / reset_map / extract_entities.
+
+Parameters: `config_file` (the mapper YAML, empty: config/mapper.yaml), every key of that file under
+its dotted name (`mode`, `tsdf.voxel_size_m`, `keyframes.enabled`, ...; see `ros_nodes.parameters`),
+and the node's own settings, `MapperNodeConfig` (topics, frames, timeouts, publishing).
 """
 
 from __future__ import annotations
@@ -28,10 +32,11 @@ from panoptic_mapping.dataio.transforms import TransformLookupError
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
 from panoptic_mapping.mapper import PanopticMapper
 from panoptic_mapping.pipeline import class_metas
-from recon_core.config import CONFIG_DIR, ConfigError, load_config
+from recon_core.config import CONFIG_DIR, ConfigError, Settings, setting
 from recon_core.frame import DatasetError, RGBDFrame
 from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
 from ros_nodes.entity_conversions import entity_to_msg, map_markers
+from ros_nodes.parameters import declare_config, declare_config_file
 from ros_nodes.qos import ENTITIES, SENSOR_RELIABLE
 from ros_nodes.runner import run_node
 from ros_nodes.tf_listener import TFListener
@@ -46,27 +51,39 @@ class _Pending:
     sent: float
 
 
+@dataclass
+class MapperNodeConfig(Settings):
+    """ROS-side settings of the mapper node; the mapping itself is `MapperConfig` (config/mapper.yaml)."""
+
+    map_frame: str = setting("map", doc="fixed frame the camera poses are looked up in (TF)")
+    color_topic: str = setting("/camera/color/image_raw", doc="color images")
+    depth_topic: str = setting("/camera/depth/image_rect_raw", doc="depth images registered to color")
+    camera_info_topic: str = setting("/camera/color/camera_info", doc="intrinsics of the color camera")
+    segmentation_service: str = setting("segment_image", doc="SegmentImage service asked for keyframe labels")
+    use_segmentation: bool = setting(True, doc="false: map geometry only, never call the service")
+    sync_slop_s: float = setting(0.02, min=0.0, doc="max |t_color - t_depth| (s) of an image pair")
+    segmentation_timeout_s: float = setting(
+        3.0, min=0.0, doc="a keyframe whose labels take longer (s) integrates without them")
+    tf_wait_s: float = setting(0.5, min=0.0, doc="how long (s) a frame waits for its pose and camera info")
+    publish_period_s: float = setting(2.0, min=0.0, min_exclusive=True,
+                                      doc="entities and markers are published at most this often (s)")
+    publish_meshes: bool = setting(True, doc="entity messages carry their meshes")
+    max_queue: int = setting(30, min=1, doc="frames waiting to be integrated; older ones are dropped")
+
+
 class MapperNode(Node):
     def __init__(self) -> None:
         super().__init__("panoptic_mapper")
-        p = self.declare_parameter
-        self.map_frame = p("map_frame", "map").value
-        config_file = p("config_file", "").value
-        mode = p("mode", "").value
-        self.sync_slop_ns = int(float(p("sync_slop_s", 0.02).value) * 1e9)
-        self.use_segmentation = bool(p("use_segmentation", True).value)
-        self.seg_timeout_s = float(p("segmentation_timeout_s", 3.0).value)
-        self.tf_wait_s = float(p("tf_wait_s", 0.5).value)
-        self.publish_period_s = float(p("publish_period_s", 2.0).value)
-        self.include_meshes = bool(p("publish_meshes", True).value)
-        self.max_queue = int(p("max_queue", 30).value)
-        path = config_file or (CONFIG_DIR / "mapper.yaml" if (CONFIG_DIR / "mapper.yaml").is_file() else None)
-        overrides = {"mode": mode} if mode else {}
-        try:
-            self.config = load_config(MapperConfig, path, overrides)
-        except ConfigError as exc:
-            self.get_logger().error(f"{exc}; using the default mapper configuration")
-            self.config = MapperConfig()
+        self.config = declare_config(self, MapperConfig, declare_config_file(self, CONFIG_DIR / "mapper.yaml"))
+        self.settings = settings = declare_config(self, MapperNodeConfig)
+        self.map_frame = settings.map_frame
+        self.sync_slop_ns = int(settings.sync_slop_s * 1e9)
+        self.use_segmentation = settings.use_segmentation
+        self.seg_timeout_s = settings.segmentation_timeout_s
+        self.tf_wait_s = settings.tf_wait_s
+        self.publish_period_s = settings.publish_period_s
+        self.include_meshes = settings.publish_meshes
+        self.max_queue = settings.max_queue
         self.mapper = PanopticMapper(self.config, class_metas())
         # inputs run on callback groups of their own (other executor threads), so TF and images keep
         # arriving while a frame is being integrated; TF has a group to itself: sharing one with
@@ -74,13 +91,13 @@ class MapperNode(Node):
         inputs = MutuallyExclusiveCallbackGroup()
         self.map_group = MutuallyExclusiveCallbackGroup()
         self.tf = TFListener(self, callback_group=MutuallyExclusiveCallbackGroup())
-        self.create_subscription(Image, p("color_topic", "/camera/color/image_raw").value, self._on_color,
+        self.create_subscription(Image, settings.color_topic, self._on_color,
                                  SENSOR_RELIABLE, callback_group=inputs)
-        self.create_subscription(Image, p("depth_topic", "/camera/depth/image_rect_raw").value, self._on_depth,
+        self.create_subscription(Image, settings.depth_topic, self._on_depth,
                                  SENSOR_RELIABLE, callback_group=inputs)
-        self.create_subscription(CameraInfo, p("camera_info_topic", "/camera/color/camera_info").value,
-                                 self._on_info, SENSOR_RELIABLE, callback_group=inputs)
-        self.seg_client = self.create_client(SegmentImage, p("segmentation_service", "segment_image").value)
+        self.create_subscription(CameraInfo, settings.camera_info_topic, self._on_info, SENSOR_RELIABLE,
+                                 callback_group=inputs)
+        self.seg_client = self.create_client(SegmentImage, settings.segmentation_service)
         self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", ENTITIES)
         self.pub_markers = self.create_publisher(MarkerArray, "panoptic_map_markers", 1)
         self.create_service(SaveMap, "save_map", self._srv_save, callback_group=self.map_group)

@@ -4,12 +4,14 @@
 data layer reads (rosbag2 .mcap/.db3, TUM, 7-Scenes), so the mapper can be driven from a file
 exactly as from a live camera. Frames are published at their recorded rate (scaled by `rate`)
 with their original stamps; the camera pose goes out as `map_frame -> camera_frame` on /tf.
+Parameters: `RGBDPlayerConfig` (declared through `ros_nodes.parameters`).
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass
 
 import rclpy
 from rclpy.node import Node
@@ -18,6 +20,7 @@ from tf2_msgs.msg import TFMessage
 
 from panoptic_mapping.dataio import DataInputConfig, DatasetError
 from panoptic_mapping.dataio.registry import open_dataset
+from recon_core.config import Settings, setting
 from recon_core.ros_env import ensure_ros_environment
 from ros_nodes.conversions import (
     depth_to_image,
@@ -26,26 +29,43 @@ from ros_nodes.conversions import (
     make_transform_stamped,
     rgb_to_image,
 )
+from ros_nodes.parameters import declare_config
 from ros_nodes.qos import SENSOR_RELIABLE, TF_DYNAMIC
+
+
+@dataclass
+class RGBDPlayerConfig(Settings):
+    """Settings of the player node (what to play, how fast, under which names)."""
+
+    source: str = setting("", doc="bag (.mcap/.db3) or TUM / 7-Scenes folder to play")
+    rate: float = setting(1.0, min=0.0, min_exclusive=True, doc="playback speed factor")
+    loop: bool = setting(False, doc="start over at the end")
+    map_frame: str = setting("map", doc="parent frame of the published camera pose")
+    camera_frame: str = setting("camera_color_optical_frame", doc="frame id of the images and the pose's child")
+    topic_prefix: str = setting("/camera", doc="images and camera info go to <prefix>/color/..., <prefix>/depth/...")
+    labels_topic_in: str = setting("", doc="label image topic in the recording (empty: auto-detect)")
+    #: Start only once this many subscribers listen to every stream (0: at once), so that no frame
+    #: is lost to DDS discovery when a mapper is launched beside the player.
+    wait_for_subscribers: int = setting(0, min=0, doc="subscribers every stream needs before playing")
+    #: The same for the ground-truth label topic (an oracle segmentation service listens there).
+    wait_for_label_subscribers: int = setting(0, min=0, doc="subscribers the label topic needs before playing")
+    wait_timeout_s: float = setting(30.0, min=0.0, doc="play anyway after this long (s) without them")
 
 
 class RGBDPlayer(Node):
     def __init__(self) -> None:
         super().__init__("rgbd_player")
-        p = self.declare_parameter
-        self.path = p("source", "").value
-        self.rate = float(p("rate", 1.0).value)
-        self.loop = bool(p("loop", False).value)
-        self.map_frame = p("map_frame", "map").value
-        self.camera_frame = p("camera_frame", "camera_color_optical_frame").value
-        self.labels_topic_in = p("labels_topic_in", "").value
-        # Start only once this many subscribers listen to the color topic (0: at once), so that no
-        # frame is lost to DDS discovery when a mapper is launched beside the player.
-        self.wait_for_subscribers = int(p("wait_for_subscribers", 0).value)
-        #: The same for the ground-truth label topic (an oracle segmentation service listens there).
-        self.wait_for_label_subscribers = int(p("wait_for_label_subscribers", 0).value)
-        self.wait_timeout_s = float(p("wait_timeout_s", 30.0).value)
-        prefix = p("topic_prefix", "/camera").value.rstrip("/")
+        settings = declare_config(self, RGBDPlayerConfig)
+        self.path = settings.source
+        self.rate = settings.rate
+        self.loop = settings.loop
+        self.map_frame = settings.map_frame
+        self.camera_frame = settings.camera_frame
+        self.labels_topic_in = settings.labels_topic_in
+        self.wait_for_subscribers = settings.wait_for_subscribers
+        self.wait_for_label_subscribers = settings.wait_for_label_subscribers
+        self.wait_timeout_s = settings.wait_timeout_s
+        prefix = settings.topic_prefix.rstrip("/")
         self.pub_color = self.create_publisher(Image, f"{prefix}/color/image_raw", SENSOR_RELIABLE)
         self.pub_depth = self.create_publisher(Image, f"{prefix}/depth/image_rect_raw", SENSOR_RELIABLE)
         self.pub_info = self.create_publisher(CameraInfo, f"{prefix}/color/camera_info", SENSOR_RELIABLE)

@@ -5,13 +5,15 @@ picked by ROS parameters, images go through `ros_nodes.conversions`, and every f
 (bad encoding, empty image, no ground truth for the stamp) is answered with success=false and a
 message while the node keeps serving.
 
-Parameters (defaults from `config/segmentation.yaml` when present, else the dataclass defaults):
-  config          segmentation YAML to start from ("" = config/segmentation.yaml)
-  backend         onnx | oracle | none
-  model_config    onnx: model config YAML (config/segmentation/*.yaml)
-  ground_truth    oracle: a generated scene's <bag>_groundtruth folder (or the bag folder)
-  noise_level     oracle: clean | default | hard (levels of the YAML)
-  seed            oracle: noise seed
+Parameters: `config_file` (the segmentation YAML, empty: config/segmentation.yaml), every key of
+that file under its dotted name (see `ros_nodes.parameters`), among them
+  backend                  onnx | oracle | none
+  onnx.model_config        onnx: model config YAML (config/segmentation/*.yaml)
+  oracle.ground_truth      oracle: a generated scene's <bag>_groundtruth folder (or the bag folder)
+  oracle.level             oracle: clean | default | hard (levels of the YAML)
+  oracle.seed              oracle: noise seed
+  oracle.levels.<level>.*  oracle: the noise levels themselves
+and the node's own settings (`SegmentationServiceConfig`):
   labels_topic    oracle: ground-truth label images (32SC1) to match by stamp
   label_buffer    oracle: how many label images to keep
   label_wait_s    oracle: how long a request waits for its label image to arrive
@@ -28,6 +30,7 @@ import sys
 import threading
 import time
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -42,15 +45,16 @@ from sensor_msgs.msg import Image, RegionOfInterest
 from panoptic_mapping.segmentation import (
     OracleSegmenter,
     PanopticSegmentation,
+    SegmentationConfig,
     SegmentationError,
-    load_segmentation_config,
     make_segmenter,
 )
 from panoptic_mapping.segmentation.config import DEFAULT_SEGMENTATION_YAML
-from recon_core.config import ConfigError
+from recon_core.config import ConfigError, Settings, setting
 from recon_core.frame import DatasetError
 from recon_core.ros_env import ensure_ros_environment
 from ros_nodes.conversions import image_to_depth, image_to_labels, image_to_rgb, labels_to_image, stamp_to_ns
+from ros_nodes.parameters import declare_config, declare_config_file
 from ros_nodes.qos import SENSOR_RELIABLE
 
 NODE_NAME = "segmentation_service"
@@ -120,26 +124,26 @@ class LatencyStats:
             return line
 
 
+@dataclass
+class SegmentationServiceConfig(Settings):
+    """ROS-side settings of the service; the segmentation itself is `SegmentationConfig`."""
+
+    labels_topic: str = setting(DEFAULT_LABELS_TOPIC, doc="oracle: ground-truth label images (32SC1)")
+    label_buffer: int = setting(30, min=1, doc="oracle: how many label images are kept")
+    label_wait_s: float = setting(0.5, min=0.0, doc="oracle: how long (s) a request waits for its label image")
+    stats_period_s: float = setting(10.0, min=0.0, min_exclusive=True, doc="period (s) of the latency log")
+
+
 class SegmentationService(Node):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        p = self.declare_parameter
-        config_path = p("config", "").value or (DEFAULT_SEGMENTATION_YAML if DEFAULT_SEGMENTATION_YAML.is_file()
-                                                else None)
-        base = load_segmentation_config(config_path)
-        overrides: dict[str, Any] = {
-            "backend": p("backend", base.backend).value,
-            "onnx.model_config": p("model_config", base.onnx.model_config).value,
-            "oracle.ground_truth": p("ground_truth", base.oracle.ground_truth).value,
-            "oracle.level": p("noise_level", base.oracle.level).value,
-            "oracle.seed": int(p("seed", base.oracle.seed).value),
-        }
-        self.labels_topic = p("labels_topic", DEFAULT_LABELS_TOPIC).value
-        self.label_wait_s = float(p("label_wait_s", 0.5).value)
-        buffer_size = int(p("label_buffer", 30).value)
-        stats_period_s = float(p("stats_period_s", 10.0).value)
-
-        self.config = load_segmentation_config(config_path, overrides)
+        self.config = declare_config(self, SegmentationConfig,
+                                     declare_config_file(self, DEFAULT_SEGMENTATION_YAML))
+        settings = declare_config(self, SegmentationServiceConfig)
+        self.labels_topic = settings.labels_topic
+        self.label_wait_s = settings.label_wait_s
+        buffer_size = settings.label_buffer
+        stats_period_s = settings.stats_period_s
         self.config.oracle.noise()  # unknown level: fail at start, naming the valid ones
         self.segmenter = make_segmenter(self.config)
         self.backend = self.config.backend

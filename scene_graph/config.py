@@ -10,26 +10,28 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from recon_core.config import CONFIG_DIR, ConfigError, load_config
+from recon_core.config import CONFIG_DIR, Settings, load_config, setting
 
 #: Default YAML file of the contact-graph builder.
 DEFAULT_CONFIG_FILE = CONFIG_DIR / "scene_graph.yaml"
+#: Broad phases of the proximal-relation search: sort-and-prune, or the naive baseline.
+BROADPHASES: tuple[str, ...] = ("sweep", "all_pairs")
 
 
 @dataclass
-class BoxConfig:
+class BoxConfig(Settings):
     """Gravity-aligned minimal box fitting (Sec. 2.2, Malandain and Boissonnat 2002)."""
 
     #: Percent of points trimmed on each side (xy in the rectangle frame, and z) against outliers;
     #: 0 keeps the exact extent (ground-truth meshes), ~0.5 suits noisy mapped meshes.
-    trim_percent: float = 0.0
+    trim_percent: float = setting(0.0, min=0.0, max=50.0, max_exclusive=True)
     #: Mesh surface samples added to the vertices before trimming (trimming needs an area-uniform
     #: cloud; a box mesh has 8 vertices). 0 uses the vertices only.
     surface_samples: int = 0
 
 
 @dataclass
-class PlaneConfig:
+class PlaneConfig(Settings):
     """Surface planes: iterative RANSAC (paper) plus height groups of upward faces."""
 
     #: RANSAC inlier distance (m), iterations and stop fraction (paper: 3 cm, 200, 10 %).
@@ -58,7 +60,7 @@ class PlaneConfig:
 
 
 @dataclass
-class LayoutConfig:
+class LayoutConfig(Settings):
     """Mapped layout entities -> layout nodes (``layout.py``): walls split into planar parts,
     stray faces dropped. Not in the paper, whose maps keep one entity per wall; a panoptic map
     has one entity per stuff class. Input that is already one element per entity (ground truth)
@@ -83,7 +85,7 @@ class LayoutConfig:
 
 
 @dataclass
-class FragmentConfig:
+class FragmentConfig(Settings):
     """Stray fragments of object meshes (``fragments.py``); not in the paper (clean meshes assumed)."""
 
     enabled: bool = True
@@ -97,7 +99,7 @@ class FragmentConfig:
 
 
 @dataclass
-class MergeConfig:
+class MergeConfig(Settings):
     """Over-segmented objects (``merge.py``): a same-class node mostly inside a larger one joins it.
     Not in the paper (its builder takes the map's instances as they are)."""
 
@@ -109,17 +111,17 @@ class MergeConfig:
 
 
 @dataclass
-class SupportConfig:
+class SupportConfig(Settings):
     """Support inference (Eqs. (1)-(3)) and its fallbacks (Sec. 2.2, Sec. 6.5)."""
 
     #: Eq. (1): a supporting plane needs n . g <= a_th with g = (0, 0, -1).
-    a_th: float = -0.9
+    a_th: float = setting(-0.9, min=-1.0, max=0.0)
     #: Eq. (2): contact-area ratio of a stable support.
     b_th: float = 0.5
     #: A support is accepted at score > accept_score (Eq. (3)), else the fallback applies.
     accept_score: float = 0.2
     #: Eq. (3) uses 1 - min(1, |D| / distance_scale); the paper's value is 1 m.
-    distance_scale: float = 1.0
+    distance_scale: float = setting(1.0, min=0.0, min_exclusive=True)
     #: Candidate planes may lie this far (m) above the child's box bottom (mesh noise, partial
     #: bottoms) and at most max_gap below it.
     above_tolerance: float = 0.04
@@ -153,7 +155,7 @@ class SupportConfig:
 
 
 @dataclass
-class RefineConfig:
+class RefineConfig(Settings):
     """Box refinement (Fig. 3d): extend the box bottom down to the supporting plane."""
 
     enabled: bool = True
@@ -165,19 +167,19 @@ class RefineConfig:
 
 
 @dataclass
-class ProximalConfig:
+class ProximalConfig(Settings):
     """Proximal relations: pairs of non-supporting entities with overlapping boxes (Sec. 2.1)."""
 
     #: Boxes are inflated by this margin (m) before the overlap test (contacts that touch).
     margin: float = 0.02
     #: Broad phase: "sweep" (sort-and-prune on AABBs) or "all_pairs" (naive baseline).
-    broadphase: str = "sweep"
+    broadphase: str = setting("sweep", choices=BROADPHASES)
     #: Layout nodes take part (furniture against walls); off keeps object-object pairs only.
     include_layout: bool = True
 
 
 @dataclass
-class MatchConfig:
+class MatchConfig(Settings):
     """Matching predicted to ground-truth nodes for the metrics (Sec. 5.3)."""
 
     #: Objects: minimum 3D box IoU for a predicted node to correspond to a ground-truth node ...
@@ -203,7 +205,7 @@ class MatchConfig:
 
 
 @dataclass
-class SceneGraphConfig:
+class SceneGraphConfig(Settings):
     """Everything the contact-graph builder reads; ``config/scene_graph.yaml`` has the same keys."""
 
     box: BoxConfig = field(default_factory=BoxConfig)
@@ -222,16 +224,6 @@ class SceneGraphConfig:
     class_table: str = ""
     #: Support-joint table file (empty: config/support_joints.yaml).
     support_joints: str = ""
-
-    def __post_init__(self) -> None:
-        if self.proximal.broadphase not in ("sweep", "all_pairs"):
-            raise ConfigError(f"proximal.broadphase must be 'sweep' or 'all_pairs', got {self.proximal.broadphase!r}")
-        if not -1.0 <= self.support.a_th <= 0.0:
-            raise ConfigError(f"support.a_th must be in [-1, 0], got {self.support.a_th}")
-        if not 0.0 <= self.box.trim_percent < 50.0:
-            raise ConfigError(f"box.trim_percent must be in [0, 50), got {self.box.trim_percent}")
-        if self.support.distance_scale <= 0.0:
-            raise ConfigError("support.distance_scale must be > 0")
 
 
 def load_scene_graph_config(path: str | Path | None = None,

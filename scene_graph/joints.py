@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from recon_core.config import CONFIG_DIR, ConfigError, load_config
+from recon_core.config import CONFIG_DIR, Settings, load_config, setting
 
 DEFAULT_JOINTS_FILE = CONFIG_DIR / "support_joints.yaml"
 SUPPORT_JOINTS = ("fixed", "floating")
@@ -21,33 +21,25 @@ ANY = "*"
 
 
 @dataclass
-class PairRule:
+class PairRule(Settings):
     parent: str = ANY
     child: str = ANY
-    joint: str = "fixed"
+    joint: str = setting("fixed", choices=SUPPORT_JOINTS)
 
 
 @dataclass
-class SupportJointTable:
+class SupportJointTable(Settings):
     """The rules; ``resolve`` applies them in order of specificity."""
 
-    default: str = "fixed"
+    default: str = setting("fixed", choices=SUPPORT_JOINTS)
     #: Joint of children whose class is movable in config/classes.yaml.
-    movable: str = "floating"
+    movable: str = setting("floating", choices=SUPPORT_JOINTS)
     #: Joint of layout children (walls on the floor); layout never floats.
-    layout: str = "fixed"
-    classes: dict[str, str] = field(default_factory=dict)
+    layout: str = setting("fixed", choices=SUPPORT_JOINTS)
+    classes: dict[str, str] = setting(default_factory=dict, choices=SUPPORT_JOINTS)
     pairs: list[PairRule] = field(default_factory=list)
     #: Mass (kg) of every object link in the exported tree (the paper's URDF uses 5 kg).
-    object_mass: float = 5.0
-
-    def __post_init__(self) -> None:
-        values = [self.default, self.movable, self.layout, *self.classes.values(), *(p.joint for p in self.pairs)]
-        bad = sorted({v for v in values if v not in SUPPORT_JOINTS})
-        if bad:
-            raise ConfigError(f"support joints must be one of {SUPPORT_JOINTS}, got {bad}")
-        if self.object_mass < 0:
-            raise ConfigError("object_mass must be >= 0")
+    object_mass: float = setting(5.0, min=0.0)
 
     def resolve(self, parent_class: str, child_class: str, child_movable: bool, child_is_layout: bool) -> str:
         """Joint type of the support edge parent -> child."""

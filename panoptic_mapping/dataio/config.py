@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from recon_core.config import Settings
+
 
 @dataclass
-class TopicConfig:
+class TopicConfig(Settings):
     """Bag topics. Empty strings are auto-detected from the message types and topic names."""
 
     color: str = ""
@@ -19,7 +21,7 @@ class TopicConfig:
 
 
 @dataclass
-class DataInputConfig:
+class DataInputConfig(Settings):
     """How frames are read, synchronised and posed."""
 
     topics: TopicConfig = field(default_factory=TopicConfig)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from recon_core.config import CONFIG_DIR, ConfigError, load_config
+from recon_core.config import CONFIG_DIR, ConfigError, Settings, load_config, setting
 
 #: Backend names accepted by `make_segmenter` (and the ROS parameter `backend`).
 BACKENDS: tuple[str, ...] = ("onnx", "oracle", "none")
@@ -24,7 +24,7 @@ PAPER_SCORE_THRESHOLD = 0.7
 
 
 @dataclass
-class PaintConfig:
+class PaintConfig(Settings):
     """How overlapping candidates become one non-overlapping label image (Detectron2's rule).
 
     Things are painted in order of decreasing score; a thing that keeps less than
@@ -32,17 +32,13 @@ class PaintConfig:
     fills the pixels left free, one segment per class.
     """
 
-    overlap_threshold: float = 0.5
+    overlap_threshold: float = setting(0.5, min=0.0, max=1.0)
     #: Segments with fewer pixels than this (after painting) are dropped; 0 keeps everything.
-    min_area_px: int = 0
-
-    def __post_init__(self) -> None:
-        _check_fraction(self, "overlap_threshold")
-        _check_non_negative(self, "min_area_px")
+    min_area_px: int = setting(0, min=0)
 
 
 @dataclass
-class OracleNoiseConfig:
+class OracleNoiseConfig(Settings):
     """One noise level of the oracle backend: how ground truth is spoiled to look like a network.
 
     Every event is drawn per frame from a generator seeded by (seed, frame key), so a frame always
@@ -52,60 +48,53 @@ class OracleNoiseConfig:
     """
 
     #: Missed instances: per-instance, per-frame drop probability ...
-    miss_prob: float = 0.05
+    miss_prob: float = setting(0.05, min=0.0, max=1.0)
     #: ... plus this much for tiny instances (ramps linearly from 0 at `small_area_px` to full at 0 px) ...
-    miss_prob_small: float = 0.3
+    miss_prob_small: float = setting(0.3, min=0.0, max=1.0)
     #: ... plus this much when the instance is cut off by the image border (partially visible).
-    miss_prob_truncated: float = 0.1
-    small_area_px: int = 1500
+    miss_prob_truncated: float = setting(0.1, min=0.0, max=1.0)
+    small_area_px: int = setting(1500, min=0)
     #: Spurious instances: expected number of random blobs per frame (Poisson), with a random thing
     #: class; blob half-axes are drawn from this range (pixels).
-    spurious_rate: float = 0.3
+    spurious_rate: float = setting(0.3, min=0)
     spurious_axes_px: list[float] = field(default_factory=lambda: [10.0, 50.0])
     #: Class confusion: probability that an instance takes another class of one of its confusion
     #: groups (`config/classes.yaml`); classes in no group are never confused.
-    confusion_prob: float = 0.05
+    confusion_prob: float = setting(0.05, min=0.0, max=1.0)
     #: Over-segmentation: probability of splitting an instance of at least `split_min_area_px`
     #: along a random line through its centroid.
-    split_prob: float = 0.03
-    split_min_area_px: int = 2000
+    split_prob: float = setting(0.03, min=0.0, max=1.0)
+    split_min_area_px: int = setting(2000, min=0)
     #: Under-segmentation: probability of merging a pair of touching same-class instances.
-    merge_prob: float = 0.1
+    merge_prob: float = setting(0.1, min=0.0, max=1.0)
     #: Boundary noise: probability that a segment's outline is eroded or dilated (50/50) by a
     #: random radius in [1, boundary_max_radius_px].
-    boundary_prob: float = 0.7
-    boundary_max_radius_px: int = 3
+    boundary_prob: float = setting(0.7, min=0.0, max=1.0)
+    boundary_max_radius_px: int = setting(3, min=0)
     #: Background bleeding: probability that a thing mask spills, within `bleed_radius_px` of its
     #: outline, onto pixels at least `bleed_depth_gap_m` farther than the object's median depth
     #: (the chair that takes the floor behind it, paper Fig. 2A). Needs the depth image.
-    bleed_prob: float = 0.05
-    bleed_radius_px: int = 8
-    bleed_depth_gap_m: float = 0.5
+    bleed_prob: float = setting(0.05, min=0.0, max=1.0)
+    bleed_radius_px: int = setting(8, min=0)
+    bleed_depth_gap_m: float = setting(0.5, min=0)
     #: Scores: things ~ N(score_mean, score_std) clipped to [score_min, 1]; spurious blobs are
     #: centred on `spurious_score_mean` instead (a real detector is less sure of its mistakes).
-    score_mean: float = 0.9
-    score_std: float = 0.05
-    score_min: float = PAPER_SCORE_THRESHOLD
-    spurious_score_mean: float = 0.75
+    score_mean: float = setting(0.9, min=0.0, max=1.0)
+    score_std: float = setting(0.05, min=0)
+    score_min: float = setting(PAPER_SCORE_THRESHOLD, min=0.0, max=1.0)
+    spurious_score_mean: float = setting(0.75, min=0.0, max=1.0)
     #: Frame-to-frame flicker: every event probability of a frame is scaled by a factor drawn
     #: uniformly from [1 - flicker, 1 + flicker], so some frames are worse than others.
-    flicker: float = 0.3
+    flicker: float = setting(0.3, min=0.0, max=1.0)
     #: Also perturb the outline of stuff segments (floor, wall, ceiling).
     stuff_boundary_noise: bool = True
     #: Image height the pixel sizes above are given for.
-    reference_height_px: int = 480
+    reference_height_px: int = setting(480, min=0, min_exclusive=True)
     paint: PaintConfig = field(default_factory=PaintConfig)
 
     def __post_init__(self) -> None:
-        for name in ("miss_prob", "miss_prob_small", "miss_prob_truncated", "confusion_prob", "split_prob",
-                     "merge_prob", "boundary_prob", "bleed_prob", "score_mean", "score_min",
-                     "spurious_score_mean", "flicker"):
-            _check_fraction(self, name)
-        for name in ("small_area_px", "spurious_rate", "split_min_area_px", "boundary_max_radius_px",
-                     "bleed_radius_px", "bleed_depth_gap_m", "score_std"):
-            _check_non_negative(self, name)
-        if self.reference_height_px <= 0:
-            raise ConfigError(f"reference_height_px must be > 0, got {self.reference_height_px}")
+        """Ranges are checked by `Settings`; this is the one condition across values of a field."""
+        super().__post_init__()
         lo_hi = self.spurious_axes_px
         if len(lo_hi) != 2 or not 0 < lo_hi[0] <= lo_hi[1]:
             raise ConfigError(f"spurious_axes_px must be [min, max] with 0 < min <= max, got {lo_hi}")
@@ -135,7 +124,7 @@ def default_noise_levels() -> dict[str, OracleNoiseConfig]:
 
 
 @dataclass
-class OracleConfig:
+class OracleConfig(Settings):
     """Ground-truth backend for generated scenes (no network needed, noise imitates one)."""
 
     #: Ground truth of a generated scene: the `*_groundtruth` folder (scene.json), or the bag
@@ -156,7 +145,7 @@ class OracleConfig:
 
 
 @dataclass
-class OnnxConfig:
+class OnnxConfig(Settings):
     """Model-based backend: the model and its decoding are described by a model YAML file."""
 
     #: Model config YAML (`config/segmentation/*.yaml`); relative paths are looked up from the
@@ -167,18 +156,14 @@ class OnnxConfig:
 
 
 @dataclass
-class SegmentationConfig:
+class SegmentationConfig(Settings):
     """Stage 1: per-frame 2D panoptic segmentation."""
 
     #: onnx | oracle | none. `none` (geometry only) is the default because it works on any input;
     #: `oracle` needs a generated scene's ground truth and `onnx` needs a model the user brings.
-    backend: str = "none"
+    backend: str = setting("none", choices=BACKENDS)
     onnx: OnnxConfig = field(default_factory=OnnxConfig)
     oracle: OracleConfig = field(default_factory=OracleConfig)
-
-    def __post_init__(self) -> None:
-        if self.backend not in BACKENDS:
-            raise ConfigError(f"unknown segmentation backend {self.backend!r}; valid backends: {list(BACKENDS)}")
 
 
 def load_segmentation_config(
@@ -200,18 +185,6 @@ def resolve_path(path: str | Path, base: Path | None = None) -> Path:
     parts = p.parts[1:] if p.parts and p.parts[0] == "config" else p.parts
     installed = CONFIG_DIR.joinpath(*parts) if parts else CONFIG_DIR
     return installed if installed.exists() else first
-
-
-def _check_fraction(obj: Any, name: str) -> None:
-    value = getattr(obj, name)
-    if not 0.0 <= value <= 1.0:
-        raise ConfigError(f"{type(obj).__name__}.{name} must be in [0, 1], got {value}")
-
-
-def _check_non_negative(obj: Any, name: str) -> None:
-    value = getattr(obj, name)
-    if value < 0:
-        raise ConfigError(f"{type(obj).__name__}.{name} must be >= 0, got {value}")
 
 
 __all__ = [

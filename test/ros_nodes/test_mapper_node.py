@@ -40,7 +40,7 @@ def test_mapper_node_maps_a_bag_with_the_segmentation_service(tmp_path):
     py = sys.executable
     procs = [
         subprocess.Popen([py, "-m", "ros_nodes.segmentation_service", "--ros-args", "-p", "backend:=oracle",
-                          "-p", f"ground_truth:={summary['ground_truth']}", "-p", "noise_level:=clean"],
+                          "-p", f"oracle.ground_truth:={summary['ground_truth']}", "-p", "oracle.level:=clean"],
                          env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
         subprocess.Popen([py, "-m", "ros_nodes.mapper_node", "--ros-args", "-p", f"config_file:={mapper_cfg}",
                           "-p", "publish_period_s:=1.0"],

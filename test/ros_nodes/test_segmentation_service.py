@@ -78,7 +78,7 @@ def test_segmentation_service_over_dds(tmp_path):
     env = _env(domain)
     ns = f"/segtest_{os.getpid()}"
     oracle = _start(f"{ns}/oracle", tmp_path / "oracle.log", env, "backend:=oracle",
-                    f"ground_truth:={tmp_path / 'scene_groundtruth'}", "noise_level:=clean", "seed:=3",
+                    f"oracle.ground_truth:={tmp_path / 'scene_groundtruth'}", "oracle.level:=clean", "oracle.seed:=3",
                     "labels_topic:=labels", "label_wait_s:=0.3")
     none = _start(f"{ns}/none", tmp_path / "none.log", env, "backend:=none")
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

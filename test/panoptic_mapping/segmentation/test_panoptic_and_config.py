@@ -96,7 +96,7 @@ def test_none_backend_and_input_checks():
 
 
 def test_factory_and_config_errors():
-    with pytest.raises(ConfigError, match="valid backends"):
+    with pytest.raises(ConfigError, match=r"backend: got 'detectron'; valid values"):
         SegmentationConfig(backend="detectron")
     cfg = SegmentationConfig()
     cfg.backend = "detectron"  # bypasses validation: the factory still names the options
