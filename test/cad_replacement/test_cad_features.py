@@ -2,37 +2,10 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
-import trimesh
 
 from cad_replacement.cad import ModelFeatures, build_model, find_support_surfaces, model_mesh_features
 from cad_replacement.cad.feature_types import SupportSurface
-from recon_core.geometry.plane import Plane
-
-EXTENTS = np.array([1.0, 0.8, 0.6])
-OFFSET = np.array([0.2, -0.1, 0.3])
-
-
-def _box() -> trimesh.Trimesh:
-    box = trimesh.creation.box(extents=EXTENTS)
-    box.apply_translation(OFFSET)
-    return box
-
-
-def _expected_faces() -> list[tuple[np.ndarray, float]]:
-    faces = []
-    for axis in range(3):
-        for sign in (-1.0, 1.0):
-            n = np.zeros(3)
-            n[axis] = sign
-            coord = OFFSET[axis] + sign * 0.5 * EXTENTS[axis]
-            faces.append((n, -sign * coord))
-    return faces
-
-
-def _match(planes: list[Plane], normal: np.ndarray, d: float, tol: float = 0.01) -> bool:
-    return any(p.normal @ normal > 0.999 and abs(p.d - d) < tol for p in planes)
 
 
 def test_support_surfaces_of_a_shelf_match_the_analytic_ones() -> None:
