@@ -196,8 +196,10 @@ class PreparedObservation:
     """Per-observation data shared by all candidates: subsamples, normals, KD-tree, seen directions."""
 
     obs: ObjectObservation
-    points: NDArray[np.float64]  # AE subsample
+    points: NDArray[np.float64]  # AE subsample (observed -> CAD direction)
     normals: NDArray[np.float64]
+    surfel_points: NDArray[np.float64]  # surfel centres (CAD -> observed direction), indexed by ``tree``
+    surfel_normals: NDArray[np.float64]
     tree: cKDTree
     surfel_radius: float
     seen_bins: NDArray[np.float64]  # (B, 3) direction bins the observation covers
@@ -214,17 +216,26 @@ class PreparedObservation:
             pts_ae, nrm_ae = pts[keep], normals[keep]
         else:
             pts_ae, nrm_ae = pts, normals
-        tree = cKDTree(pts_ae)
-        # Surfel radius: half the typical spacing of the AE points -> a dense cover of the seen surface.
-        dist, _ = tree.query(pts_ae, k=2)
-        spacing = float(np.median(dist[:, 1])) if len(pts_ae) > 1 else 0.0
-        radius = 0.75 * spacing
+        # Surfels: every observed point (capped) is a disk; for uniform sampling of density rho the
+        # median nearest-neighbour spacing is m = sqrt(ln 2 / (pi rho)) and a disk radius of
+        # sqrt(3 / (pi rho)) = 2.08 m covers 95 % of the sampled surface, so the CAD -> points term
+        # measures missing data, not sampling gaps.
+        if len(pts) > cfg.surfel_points:
+            keep_s = rng.choice(len(pts), cfg.surfel_points, replace=False)
+            pts_s, nrm_s = pts[keep_s], normals[keep_s]
+        else:
+            pts_s, nrm_s = pts, normals
+        tree = cKDTree(pts_s)
+        probe = pts_s[: min(len(pts_s), 1000)]
+        dist, _ = tree.query(probe, k=2)
+        spacing = float(np.median(dist[:, 1])) if len(pts_s) > 1 else 0.0
+        radius = 2.08 * spacing
         seen = observed_directions(nrm_ae, cfg.visible_min_fraction)
         n_fit = min(cfg.align_points, len(pts))
         fit = pts[rng.choice(len(pts), n_fit, replace=False)] if len(pts) > n_fit else pts
         n_scr = min(cfg.screen_points, len(fit))
         scr = fit[rng.choice(len(fit), n_scr, replace=False)] if len(fit) > n_scr else fit
-        return cls(obs, pts_ae, nrm_ae, tree, radius, seen, fit, scr)
+        return cls(obs, pts_ae, nrm_ae, pts_s, nrm_s, tree, radius, seen, fit, scr)
 
 
 def estimate_normals(points: NDArray[np.float64], center: NDArray[np.float64], k: int = 16) -> NDArray[np.float64]:
@@ -433,9 +444,9 @@ class AlignmentProblem:
             w = self.sample_weight
             if np.any(vis):
                 ys = y[vis]
-                _, nn = prep.tree.query(ys)
-                o = prep.points[nn]
-                no = prep.normals[nn]
+                nn = nearest_surfel(prep, ys, ny[vis], k=4)
+                o = prep.surfel_points[nn]
+                no = prep.surfel_normals[nn]
                 e = o - ys
                 en = np.einsum("ij,ij->i", e, no)
                 et = e - en[:, None] * no
@@ -522,15 +533,54 @@ class AlignmentError:
     visible_fraction: float
 
 
-def surfel_distance(
-    prepared: PreparedObservation, y: NDArray[np.float64]
+#: Cosine above which an observed surfel's normal is compatible with a CAD sample's normal.
+SURFEL_NORMAL_COS = 0.3
+
+
+def _surfel_gap(
+    prepared: PreparedObservation, y: NDArray[np.float64], nn: NDArray[np.int64]
 ) -> NDArray[np.float64]:
-    """Distance of points ``y`` to the nearest observed surfel (disk of the sampling radius)."""
+    """Distance of ``y`` (..., 3) to the surfels ``nn`` (...): normal offset and tangential excess."""
+    e = prepared.surfel_points[nn] - y
+    no = prepared.surfel_normals[nn]
+    en = np.einsum("...j,...j->...", e, no)
+    et = np.linalg.norm(e - en[..., None] * no, axis=-1)
+    g = np.maximum(et - prepared.surfel_radius, 0.0)
+    return np.sqrt(en * en + g * g)
+
+
+def nearest_surfel(
+    prepared: PreparedObservation, y: NDArray[np.float64], normals: NDArray[np.float64], k: int = 4
+) -> NDArray[np.int64]:
+    """Index of the closest observed surfel among the ``k`` nearest points whose normal agrees.
+
+    Plain nearest neighbours confuse the two faces of thin parts (a door's front sample finds a
+    point on the door's back); requiring compatible normals removes that bias. Falls back to the
+    nearest point when no neighbour is compatible.
+    """
+    k = max(1, min(k, len(prepared.surfel_points)))
+    _, nn = prepared.tree.query(y, k=k)
+    nn = nn.reshape(len(y), k)
+    gap = _surfel_gap(prepared, y[:, None, :], nn)
+    compat = np.einsum("nkj,nj->nk", prepared.surfel_normals[nn], normals) > SURFEL_NORMAL_COS
+    gap = np.where(compat, gap, np.inf)
+    best = np.argmin(gap, axis=1)
+    pick = nn[np.arange(len(y)), best]
+    return np.where(np.isfinite(gap.min(axis=1)), pick, nn[:, 0])
+
+
+def surfel_distance(
+    prepared: PreparedObservation, y: NDArray[np.float64], normals: NDArray[np.float64] | None = None
+) -> NDArray[np.float64]:
+    """Distance of points ``y`` to the nearest compatible observed surfel (disk of the sampling radius)."""
     if len(y) == 0:
         return np.zeros(0)
-    _, nn = prepared.tree.query(y)
-    e = prepared.points[nn] - y
-    no = prepared.normals[nn]
+    if normals is not None:
+        nn = nearest_surfel(prepared, y, normals, k=8)
+    else:
+        _, nn = prepared.tree.query(y)
+    e = prepared.surfel_points[nn] - y
+    no = prepared.surfel_normals[nn]
     en = np.einsum("ij,ij->i", e, no)
     et = np.linalg.norm(e - en[:, None] * no, axis=1)
     has_n = np.linalg.norm(no, axis=1) > 0.5
@@ -557,7 +607,7 @@ def alignment_error(
     pts = prepared.points
     d_obs = scene.compute_distance(o3d.core.Tensor(pts.astype(np.float32))).numpy().astype(np.float64)
     vis = visible_samples(normals_map, self_visible, prepared.seen_bins, cfg.visible_normal_cos)
-    d_mod = surfel_distance(prepared, samples_map[vis])
+    d_mod = surfel_distance(prepared, samples_map[vis], normals_map[vis])
     both = np.concatenate([d_obs, d_mod])
     rms = lambda v: float(np.sqrt(np.mean(v * v))) if len(v) else 0.0  # noqa: E731
     return AlignmentError(rms(both), rms(d_obs), rms(d_mod), float(vis.mean()) if len(vis) else 0.0)
@@ -592,6 +642,7 @@ __all__ = [
     "raycasting_scene",
     "rot_z",
     "soft_l1",
+    "nearest_surfel",
     "surfel_distance",
     "visible_samples",
 ]

@@ -134,13 +134,19 @@ def estimate_joint_values(
             pts = pts_all[cand]
             cap = np.minimum(d_rest[cand], 10.0 * tau)
 
+            # The subtree moves rigidly with the joint: P_l(q) = P_c(q) P_c(q_now)^-1 P_l(q_now), with
+            # P_c(q) = P_parent J.origin motion(q) (no full forward kinematics per grid value).
+            frame = pose @ link_poses[joint.parent] @ joint.origin
+            now_inv = np.linalg.inv(frame @ joint.motion(joint.clip(values[joint.name])))
+            rel = {name: now_inv @ pose @ link_poses[name] for name in moving}
+
             def cost_of(grid: NDArray[np.float64], joint: Joint = joint, moving: list[str] = moving,
-                        pts: NDArray[np.float64] = pts, cap: NDArray[np.float64] = cap) -> NDArray[np.float64]:
-                poses_by_value = [model.link_poses({**values, joint.name: float(g)}) for g in grid]
+                        pts: NDArray[np.float64] = pts, cap: NDArray[np.float64] = cap,
+                        frame: NDArray[np.float64] = frame, rel: dict = rel) -> NDArray[np.float64]:
+                child = np.stack([frame @ joint.motion(joint.clip(float(g))) for g in grid])
                 d = np.full((len(grid), len(pts)), np.inf)
                 for name in moving:
-                    world = np.stack([pose @ p[name] for p in poses_by_value])
-                    d = np.minimum(d, scenes.distance_batch(name, world, pts))
+                    d = np.minimum(d, scenes.distance_batch(name, child @ rel[name], pts))
                 return _robust(np.minimum(d, cap[None, :]), tau).sum(axis=1)
 
             closed = float(cost_of(np.array([joint.zero_value]))[0]) if len(pts) else 0.0

@@ -23,6 +23,7 @@ step stops as soon as the bound cannot beat the current k-th best.
 
 from __future__ import annotations
 
+import functools
 import heapq
 import itertools
 import time
@@ -182,9 +183,15 @@ def observed_planes(obs: ObjectObservation, config: CadReplacementConfig) -> Obs
     return ObservedPlanes(n_box, d_box, n_box[:, 2] > SUPPORT_NORMAL_COS)
 
 
+@functools.lru_cache(maxsize=1)
+def _default_table() -> ClassTable:
+    """The repository class table, parsed once (YAML parsing costs ~0.1 s)."""
+    return load_class_table()
+
+
 def candidate_classes(class_name: str, table: ClassTable | None = None) -> list[str]:
     """The observed class first, then the classes the table marks as interchangeable with it."""
-    table = table if table is not None else load_class_table()
+    table = table if table is not None else _default_table()
     try:
         info = table.by_name(class_name)
     except UnknownClassError:
@@ -331,7 +338,8 @@ def _plane_term(
     big = 1e6
     cost = np.where(forbidden, big, cost)
     # One "unmatched" column per observed plane keeps every row assignable.
-    full = np.concatenate([cost, np.full((n_obs, n_obs), cfg.plane_unmatched_cost)], axis=1)
+    unmatched = cfg.plane_unmatched_cost if normalise else 0.0
+    full = np.concatenate([cost, np.full((n_obs, n_obs), unmatched)], axis=1)
     r, c = linear_sum_assignment(full)
     total = float(full[r, c].sum())
     pairs = tuple((int(i), int(j)) for i, j in zip(r, c, strict=True) if j < len(n_m))

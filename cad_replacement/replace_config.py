@@ -36,8 +36,10 @@ class CadReplacementConfig:
     #: Ours: matching penalty of a model from an interchangeable (confusable) class rather than the
     #: observed one: the detector's label is trusted unless the geometry clearly says otherwise.
     w_class: float = 0.1
-    #: Eq. (9) cost of an observed plane left without a partner (|Pi_x| > |Pi_y|): the worst normal term.
-    plane_unmatched_cost: float = 2.0
+    #: Ours: Eq. (9) cost of an observed plane left without a partner (|Pi_x| > |Pi_y|). Kept small:
+    #: CAD feature lists hold only the dominant planes (a table lists its top), so a missing partner
+    #: is weak evidence. The paper's bijection matches the smaller set only (cost 0 here).
+    plane_unmatched_cost: float = 0.3
     #: RANSAC on the observation (Sec. 4.1 uses 3 cm, 200 iterations, 10 % stop fraction); ``None``:
     #: min(3 cm, 2 % of the box diagonal) as for CAD models, so small objects get planes too.
     plane_distance: float | None = None
@@ -47,14 +49,17 @@ class CadReplacementConfig:
     plane_samples: int = 1500
 
     # ------------------------------------------------------------------ alignment (Sec. 4.3)
-    #: Ours: points in the short screening fit of every top-k candidate, and its LM evaluations.
+    #: Ours, coarse stage: every top-k candidate is scored at its box start on ``screen_points``;
+    #: the best ``screen_fits`` get a short LM of ``screen_max_nfev`` evaluations.
     screen_points: int = 150
-    screen_max_nfev: int = 8
+    screen_fits: int = 6
+    screen_max_nfev: int = 6
     #: Ours: candidates kept after screening for the full fit (with articulation).
-    screen_keep: int = 3
-    #: Ours: points in the full LM fit (subsample), and its LM evaluations.
+    screen_keep: int = 2
+    #: Ours: points (subsample) and CAD samples in the full LM fit, and its LM evaluations.
     align_points: int = 500
-    align_max_nfev: int = 40
+    align_model_samples: int = 200
+    align_max_nfev: int = 30
     #: Paper: points used by its dense LM (all of them, capped for memory).
     paper_max_points: int = 4000
     #: Robust scale tau (m) of the soft-L1 residual of ours: points farther than ~tau from the CAD
@@ -72,6 +77,8 @@ class CadReplacementConfig:
     ae_model_samples: int = 1200
     #: Observed points used to evaluate AE (random subsample; all when fewer).
     ae_points: int = 2000
+    #: Observed points used as surfels for the CAD -> points direction (denser is more exact).
+    surfel_points: int = 8000
     #: A CAD sample counts in the CAD -> points direction when its normal is within this angle
     #: (cosine) of a direction the observation's normals cover (see ``alignment.observed_directions``).
     visible_normal_cos: float = 0.85
@@ -87,7 +94,7 @@ class CadReplacementConfig:
     joint_grid: int = 12
     joint_refine: int = 7
     #: Points (not explained by the rest of the model) used per joint.
-    joint_points: int = 300
+    joint_points: int = 200
     #: Coordinate-descent passes over the joints.
     joint_passes: int = 1
 

@@ -238,6 +238,12 @@ def replace_object(
     return base
 
 
+def _rms(prob: AlignmentProblem, x: NDArray[np.float64]) -> float:
+    """Robust RMS of a problem's residuals at ``x`` (the screening score)."""
+    r = prob.residuals(x)
+    return float(np.sqrt(np.mean(r * r))) if len(r) else 0.0
+
+
 def _selection_factor(m: MatchCandidate, cfg: CadReplacementConfig) -> float:
     return (1.0 + cfg.front_ae_factor * m.d_front) * (1.0 + cfg.class_ae_factor * m.d_class)
 
@@ -252,8 +258,9 @@ def _align_ours(
 ) -> list[CandidateResult]:
     bottom = obs.bottom_z
     center_xy = obs.gravity_box.center[:2]
+    # Coarse stage 1: every top-k candidate (all yaws of all models) is scored at its box start.
     t = time.perf_counter()
-    screened: list[tuple[float, MatchCandidate, NDArray[np.float64], float, int]] = []
+    starts: list[tuple[float, MatchCandidate, AlignmentProblem, NDArray[np.float64]]] = []
     geoms: dict[str, ModelGeometry] = {}
     for m in matches:
         geom = geoms.get(m.entry.key) or cache.get(m.entry)
@@ -263,10 +270,18 @@ def _align_ours(
             anisotropy_weight=cfg.anisotropy_weight, model_samples=max(60, cfg.screen_points),
         )
         x0 = prob.start(box_start_scale(obs, geom, m.box_rotation, bottom), center_xy)
+        starts.append((_rms(prob, x0) * _selection_factor(m, cfg), m, prob, x0))
+    starts.sort(key=lambda it: it[0])
+    timings["screen_start"] = time.perf_counter() - t
+    # Coarse stage 2: a short robust LM on the subsample for the best starts.
+    t = time.perf_counter()
+    screened: list[tuple[float, MatchCandidate, NDArray[np.float64], float, int]] = []
+    for rank, (score0, m, prob, x0) in enumerate(starts):
+        if rank >= cfg.screen_fits:
+            screened.append((score0 * 10.0, m, x0, 0.0, 1))  # never fitted: ranked behind the fitted ones
+            continue
         x, cost, nfev = prob.solve(x0, cfg.screen_max_nfev)
-        n_res = max(len(prob.residuals(x)), 1)
-        rms = float(np.sqrt(2.0 * 0.5 * np.sum(prob.residuals(x) ** 2) / n_res))
-        screened.append((rms * _selection_factor(m, cfg), m, x, cost, nfev))
+        screened.append((_rms(prob, x) * _selection_factor(m, cfg), m, x, cost, nfev))
     timings["screen"] = time.perf_counter() - t
     screened.sort(key=lambda it: it[0])
 
@@ -283,7 +298,7 @@ def _align_ours(
             continue
         prob = AlignmentProblem(
             geom, m.rotation, bottom, prepared.fit_points, cfg, prepared=prepared,
-            anisotropy_weight=cfg.anisotropy_weight, model_samples=cfg.align_points,
+            anisotropy_weight=cfg.anisotropy_weight, model_samples=cfg.align_model_samples,
         )
         x2, cost2, nfev2 = prob.solve(x, cfg.align_max_nfev)
         pl = prob.placement(x2)
@@ -293,7 +308,7 @@ def _align_ours(
         if scaled.movable_joints:
             ta = time.perf_counter()
             rigid_pose = pl.pose
-            art = estimate_joint_values(prepared.points, scaled, rigid_pose, cfg)
+            art = estimate_joint_values(prepared.fit_points, scaled, rigid_pose, cfg)
             values = art.values
             t_art += time.perf_counter() - ta
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
