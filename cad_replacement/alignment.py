@@ -637,12 +637,12 @@ __all__ = [
     "closest_points",
     "estimate_normals",
     "map_normals",
+    "nearest_surfel",
     "observed_directions",
     "posed_scene",
     "raycasting_scene",
     "rot_z",
     "soft_l1",
-    "nearest_surfel",
     "surfel_distance",
     "visible_samples",
 ]
