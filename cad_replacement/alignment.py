@@ -45,6 +45,7 @@ from scipy.spatial import cKDTree
 
 from cad_replacement.cad.library import CadEntry
 from cad_replacement.cad.model import CadModel
+from scene_graph.box import GravityBox
 
 from .observation import ObjectObservation
 from .replace_config import CadReplacementConfig
@@ -52,6 +53,10 @@ from .replace_config import CadReplacementConfig
 EPS = 1e-12
 #: Offset (m) of visibility rays from the surface they start on.
 RAY_OFFSET = 1e-3
+#: Length of the mean observed normal above which an observation counts as seen from one side.
+PARTIAL_MEAN_NORMAL = 0.3
+#: Distance (m) of the virtual orthographic camera used for occlusion of partial observations.
+VIEW_DISTANCE = 20.0
 
 
 def rot_z(angle: float) -> NDArray[np.float64]:
@@ -115,6 +120,7 @@ class ModelGeometry:
     link_samples: NDArray[np.float64]
     link_normals: NDArray[np.float64]
     link_names: tuple[str, ...]
+    sample_area: float = 0.0  # model surface area (m^2) each sample stands for, closed configuration
     build_time_s: float = 0.0
 
     @classmethod
@@ -162,6 +168,7 @@ class ModelGeometry:
             link_samples=lp,
             link_normals=ln,
             link_names=names,
+            sample_area=float(areas.sum()) / max(len(pts), 1),
             build_time_s=time.perf_counter() - t0,
         )
 
@@ -202,7 +209,8 @@ class PreparedObservation:
     surfel_normals: NDArray[np.float64]
     tree: cKDTree
     surfel_radius: float
-    seen_bins: NDArray[np.float64]  # (B, 3) direction bins the observation covers
+    bin_area: NDArray[np.float64]  # (B,) observed surface area (m^2) per direction bin
+    view_dir: NDArray[np.float64] | None  # main viewing direction of a partial observation (None: all around)
     fit_points: NDArray[np.float64]  # full-fit subsample
     screen_points: NDArray[np.float64]
 
@@ -230,12 +238,19 @@ class PreparedObservation:
         dist, _ = tree.query(probe, k=2)
         spacing = float(np.median(dist[:, 1])) if len(pts_s) > 1 else 0.0
         radius = 2.08 * spacing
-        seen = observed_directions(nrm_ae, cfg.visible_min_fraction)
+        # Area one surfel stands for at this density: 1 / rho = pi m^2 / ln 2.
+        area_per_point = np.pi * spacing * spacing / np.log(2.0)
+        seen = observed_area_per_bin(nrm_s, area_per_point * len(pts) / max(len(pts_s), 1))
         n_fit = min(cfg.align_points, len(pts))
         fit = pts[rng.choice(len(pts), n_fit, replace=False)] if len(pts) > n_fit else pts
         n_scr = min(cfg.screen_points, len(fit))
         scr = fit[rng.choice(len(fit), n_scr, replace=False)] if len(fit) > n_scr else fit
-        return cls(obs, pts_ae, nrm_ae, pts_s, nrm_s, tree, radius, seen, fit, scr)
+        # A partial observation's normals lean towards where it was seen from; a scan from all
+        # sides averages out. |mean normal| > 0.3 -> partial, seen along that direction.
+        mean_n = nrm_s.mean(axis=0) if len(nrm_s) else np.zeros(3)
+        mlen = float(np.linalg.norm(mean_n))
+        view = mean_n / mlen if mlen > PARTIAL_MEAN_NORMAL else None
+        return cls(obs, pts_ae, nrm_ae, pts_s, nrm_s, tree, radius, seen, view, fit, scr)
 
 
 def estimate_normals(points: NDArray[np.float64], center: NDArray[np.float64], k: int = 16) -> NDArray[np.float64]:
@@ -249,30 +264,40 @@ def estimate_normals(points: NDArray[np.float64], center: NDArray[np.float64], k
     return np.where(length > EPS, n / np.maximum(length, EPS), 0.0)
 
 
-def observed_directions(normals: NDArray[np.float64], min_fraction: float) -> NDArray[np.float64]:
-    """Direction bins that hold at least ``min_fraction`` of the observed normals (the sides seen)."""
+def direction_bin(normals: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Index of the nearest of the ``DIRECTION_BINS`` for each (unit) normal."""
+    return np.argmax(normals @ DIRECTION_BINS.T, axis=1)
+
+
+def observed_area_per_bin(normals: NDArray[np.float64], area_per_point: float) -> NDArray[np.float64]:
+    """Observed surface area (m^2) whose normals fall in each direction bin; all inf without normals."""
     valid = np.linalg.norm(normals, axis=1) > 0.5
     if not np.any(valid):
-        return DIRECTION_BINS.copy()  # nothing known: every side counts
-    idx = np.argmax(normals[valid] @ DIRECTION_BINS.T, axis=1)
-    counts = np.bincount(idx, minlength=len(DIRECTION_BINS))
-    return DIRECTION_BINS[counts >= max(1.0, min_fraction * valid.sum())]
+        return np.full(len(DIRECTION_BINS), np.inf)  # nothing known: every side counts as seen
+    counts = np.bincount(direction_bin(normals[valid]), minlength=len(DIRECTION_BINS))
+    return counts * area_per_point
 
 
 def visible_samples(
-    normals_map: NDArray[np.float64], self_visible: NDArray[np.bool_], seen_bins: NDArray[np.float64], cos: float
+    normals_map: NDArray[np.float64],
+    self_visible: NDArray[np.bool_],
+    bin_area: NDArray[np.float64],
+    sample_area: float,
+    min_coverage: float,
 ) -> NDArray[np.bool_]:
-    """CAD samples the observation could have seen: not self-occluded and facing a side it covers.
+    """CAD samples the observation could have seen: not self-occluded and on a side it covers.
 
-    This is how the CAD -> points half of the AE handles partial observations: a sample on the
-    back of a cabinet seen only from the front is not expected to have data near it, a sample on
-    its front is (so a model wider than the observed front is penalised). The seen sides are the
-    direction bins of the observed normals (``observed_directions``).
+    This is how the CAD -> points half of the AE handles partial observations. Samples are grouped
+    by the direction of their normal; a direction counts as seen when the observation holds at
+    least ``min_coverage`` of the area the posed CAD surface shows in that direction
+    (``bin_area`` vs. samples x ``sample_area``). The back of a cabinet seen from the front has
+    no data and is skipped; its front is seen, so a model wider than the observed front is
+    penalised; a few points on a handle's top do not make the whole top face "seen".
     """
-    if len(seen_bins) == 0:
-        return np.zeros(len(normals_map), dtype=bool)
-    facing = (normals_map @ seen_bins.T).max(axis=1) >= cos
-    return facing & self_visible
+    bins = direction_bin(normals_map)
+    cad_area = np.bincount(bins[self_visible], minlength=len(DIRECTION_BINS)) * sample_area
+    seen = bin_area >= min_coverage * cad_area
+    return self_visible & seen[bins]
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -336,6 +361,8 @@ class AlignmentProblem:
         two_sided: bool = True,
         anisotropy_weight: float = 0.0,
         model_samples: int = 300,
+        height_target: float | None = None,
+        height_weight: float = 0.0,
     ) -> None:
         self.geom = geom
         self.r0 = np.asarray(base_rotation, dtype=np.float64)
@@ -346,6 +373,10 @@ class AlignmentProblem:
         self.robust = robust
         self.tau = cfg.robust_scale
         self.aniso = anisotropy_weight * np.sqrt(max(len(points), 1))
+        # Eq. (13), second component: the model's height should equal the observed box height
+        # (support to top), which every view of a standing object shows.
+        self.height_target = height_target
+        self.height_w = height_weight * np.sqrt(max(len(points), 1))
         self.prepared = prepared if two_sided else None
         self.up_row = np.abs(self.r0[2])  # which model axis is vertical (|R0| row z)
         self._cache_x: NDArray[np.float64] | None = None
@@ -437,8 +468,9 @@ class AlignmentProblem:
             ny = (self.sample_normals / s) @ a.T
             ny /= np.maximum(np.linalg.norm(ny, axis=1, keepdims=True), EPS)
             if self.visible_mask is None:  # fixed for one fit: keeps the residual vector's meaning
+                area = self.geom.sample_area * len(self.geom.samples) / max(len(ny), 1) * float(np.prod(s)) ** (2 / 3)
                 self.visible_mask = visible_samples(
-                    ny, np.ones(len(ny), dtype=bool), prep.seen_bins, self.cfg.visible_normal_cos
+                    ny, np.ones(len(ny), dtype=bool), prep.bin_area, area, self.cfg.visible_min_coverage
                 )
             vis = self.visible_mask
             w = self.sample_weight
@@ -466,6 +498,15 @@ class AlignmentProblem:
             else:
                 res_parts.append(np.zeros(2 * len(vis)))
                 jac_parts.append(np.zeros((2 * len(vis), len(x))))
+        if self.height_target is not None and self.height_w > 0.0:
+            hs = self.up_row * s * self.geom.size
+            res_parts.append(np.array([self.height_w * (hs.sum() - self.height_target)]))
+            jh = np.zeros((1, len(x)))
+            if self.uniform:
+                jh[0, 0] = self.height_w * hs.sum()
+            else:
+                jh[0, :3] = self.height_w * hs
+            jac_parts.append(jh)
         if self.aniso > 0.0 and not self.uniform:
             ls = x[:3]
             res_parts.append(self.aniso * (ls - ls.mean()))
@@ -506,7 +547,7 @@ class AlignmentProblem:
 
 
 def box_start_scale(
-    obs: ObjectObservation, geom: ModelGeometry, box_rotation: NDArray[np.float64], bottom_z: float, clip: float = 1.5
+    box: GravityBox, geom: ModelGeometry, box_rotation: NDArray[np.float64], bottom_z: float, clip: float = 1.5
 ) -> NDArray[np.float64]:
     """Feature-only start (box to box): per model axis, observed box extent / model extent.
 
@@ -514,7 +555,6 @@ def box_start_scale(
     horizontal ratios are clipped to ``clip`` times the vertical one either way, because a partial
     view shortens the unseen depth rather than revealing a model 3x too thin.
     """
-    box = obs.gravity_box
     size_box = np.array([box.size[0], box.size[1], max(box.z_max - bottom_z, 1e-3)])
     obs_along_model = np.abs(box_rotation).T @ size_box
     ratio = obs_along_model / geom.size
@@ -597,6 +637,7 @@ def alignment_error(
     normals_map: NDArray[np.float64],
     self_visible: NDArray[np.bool_],
     cfg: CadReplacementConfig,
+    sample_area: float,
 ) -> AlignmentError:
     """AE of a posed CAD (``scene`` in the map frame, its samples/normals in the map frame).
 
@@ -605,8 +646,21 @@ def alignment_error(
     surfel. AE is the RMS over both sets; never NaN (an empty direction contributes nothing).
     """
     pts = prepared.points
+    vis = visible_samples(normals_map, self_visible, prepared.bin_area, sample_area, cfg.visible_min_coverage)
+    if prepared.view_dir is not None and np.any(vis):
+        # Partial view: keep samples an orthographic camera along the viewing direction would see
+        # (rays from far away towards the sample must reach it first), so occluded back legs or
+        # a shelf's inside are not counted as missing data.
+        v = prepared.view_dir
+        idx = np.flatnonzero(vis)
+        facing = normals_map[idx] @ v > 0.0
+        origins = samples_map[idx] + VIEW_DISTANCE * v
+        rays = np.c_[origins, np.broadcast_to(-v, origins.shape)].astype(np.float32)
+        t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        seen = facing & (t_hit >= VIEW_DISTANCE - 5e-3)
+        vis = vis.copy()
+        vis[idx[~seen]] = False
     d_obs = scene.compute_distance(o3d.core.Tensor(pts.astype(np.float32))).numpy().astype(np.float64)
-    vis = visible_samples(normals_map, self_visible, prepared.seen_bins, cfg.visible_normal_cos)
     d_mod = surfel_distance(prepared, samples_map[vis], normals_map[vis])
     both = np.concatenate([d_obs, d_mod])
     rms = lambda v: float(np.sqrt(np.mean(v * v))) if len(v) else 0.0  # noqa: E731
@@ -635,10 +689,11 @@ __all__ = [
     "alignment_error",
     "box_start_scale",
     "closest_points",
+    "direction_bin",
     "estimate_normals",
     "map_normals",
     "nearest_surfel",
-    "observed_directions",
+    "observed_area_per_bin",
     "posed_scene",
     "raycasting_scene",
     "rot_z",

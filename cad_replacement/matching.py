@@ -38,6 +38,7 @@ from cad_replacement.cad.classes import ClassTable, UnknownClassError, load_clas
 from cad_replacement.cad.feature_types import SUPPORT_NORMAL_COS, ModelFeatures
 from cad_replacement.cad.features import extract_planes
 from cad_replacement.cad.library import CadEntry
+from scene_graph.box import GravityBox
 
 from .observation import ObjectObservation
 from .replace_config import CadReplacementConfig
@@ -110,12 +111,14 @@ def orientation_set(class_name: str, method: str) -> NDArray[np.float64]:
 class MatchCandidate:
     """One oriented CAD candidate: model, rotation into the map and its Matching Error terms.
 
-    ``rotation`` maps the model's canonical frame into the map (``Rz(box yaw) @ box_rotation``);
-    ``box_rotation`` is the discrete orientation relative to the observed box.
+    ``rotation`` maps the model's canonical frame into the map (``Rz(frame yaw) @ box_rotation``);
+    ``box_rotation`` is the discrete orientation relative to ``frame``, the observed box (or, for
+    ours, a box aligned with a large vertical plane, see ``candidate_frames``).
     """
 
     entry: CadEntry
     features: ModelFeatures
+    frame: GravityBox
     box_rotation: NDArray[np.float64]
     rotation: NDArray[np.float64]
     d_size: float
@@ -149,15 +152,23 @@ class MatchResult:
 
 @dataclass(frozen=True, eq=False)
 class ObservedPlanes:
-    """Observation planes in its box frame (origin at the box centre, axes of the box): Eq. (9)'s T_x^T pi."""
+    """Observation planes (map frame: ``normals``, ``offsets``, ``areas`` = inlier fractions)."""
 
     normals: NDArray[np.float64]
     offsets: NDArray[np.float64]
-    support: NDArray[np.bool_]
+    areas: NDArray[np.float64]
+
+    def in_frame(self, box: GravityBox) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """Normals, offsets and support flags in a box frame (Eq. 9's T_x^T pi)."""
+        rz = _rot_z(box.yaw)
+        # Plane n.x + d = 0 with x = c + Rz u  ->  (Rz^T n).u + (d + n.c) = 0.
+        n_box = self.normals @ rz
+        d_box = self.offsets + self.normals @ box.center
+        return n_box, d_box, n_box[:, 2] > SUPPORT_NORMAL_COS
 
 
 def observed_planes(obs: ObjectObservation, config: CadReplacementConfig) -> ObservedPlanes:
-    """RANSAC planes of the observation (Sec. 4.1 settings) expressed in the observed box frame."""
+    """RANSAC planes of the observation (Sec. 4.1 settings), map frame."""
     box = obs.gravity_box
     thr = config.plane_distance
     if thr is None:
@@ -173,14 +184,46 @@ def observed_planes(obs: ObjectObservation, config: CadReplacementConfig) -> Obs
         seed=config.seed,
     )
     if not planes:
-        return ObservedPlanes(np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=bool))
-    n = np.array([p.normal for p in planes])
-    d = np.array([p.d for p in planes])
-    rz = _rot_z(box.yaw)
-    # Plane n.x + d = 0 with x = c + Rz u  ->  (Rz^T n).u + (d + n.c) = 0.
-    n_box = n @ rz
-    d_box = d + n @ box.center
-    return ObservedPlanes(n_box, d_box, n_box[:, 2] > SUPPORT_NORMAL_COS)
+        return ObservedPlanes(np.zeros((0, 3)), np.zeros(0), np.zeros(0))
+    return ObservedPlanes(
+        np.array([p.normal for p in planes]), np.array([p.d for p in planes]), np.array([p.area for p in planes])
+    )
+
+
+def box_in_frame(points: NDArray[np.float64], yaw: float) -> GravityBox:
+    """Tight gravity-aligned box of ``points`` whose axes are rotated by ``yaw``."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    u = points[:, 0] * c + points[:, 1] * s
+    v = -points[:, 0] * s + points[:, 1] * c
+    lo = np.array([u.min(), v.min(), points[:, 2].min()])
+    hi = np.array([u.max(), v.max(), points[:, 2].max()])
+    mid = 0.5 * (lo + hi)
+    center = np.array([mid[0] * c - mid[1] * s, mid[0] * s + mid[1] * c, mid[2]])
+    return GravityBox(center, hi - lo, yaw)
+
+
+def candidate_frames(obs: ObjectObservation, planes: ObservedPlanes, extra: int = 2) -> list[GravityBox]:
+    """Box frames whose axes the model axes are aligned to: the observed box, plus (ours) the frames
+    of the largest vertical planes.
+
+    The minimal-footprint box is tilted when a door stands open or a drawer is out; the large
+    vertical planes (sides, front, back) still show the body's axes. Frames within 5 degrees of one
+    already listed (modulo a quarter turn) are dropped.
+    """
+    box = obs.gravity_box
+    frames = [box]
+    if extra <= 0 or len(planes.normals) == 0:
+        return frames
+    vertical = np.flatnonzero(np.abs(planes.normals[:, 2]) < 0.2)
+    for i in vertical[np.argsort(-planes.areas[vertical])]:
+        if len(frames) > extra:
+            break
+        yaw = float(np.arctan2(planes.normals[i, 1], planes.normals[i, 0]))
+        quarter = 0.5 * np.pi
+        yaw = yaw - quarter * np.round(yaw / quarter)
+        if all(abs(((yaw - f.yaw + 0.25 * np.pi) % quarter) - 0.25 * np.pi) > np.radians(5.0) for f in frames):
+            frames.append(box_in_frame(obs.points, yaw))
+    return frames
 
 
 @functools.lru_cache(maxsize=1)
@@ -224,35 +267,37 @@ def match_candidates(
     cfg = config or CadReplacementConfig()
     t0 = time.perf_counter()
     paper = cfg.method == "paper"
-    box = obs.gravity_box
     if planes is None:
         planes = observed_planes(obs, cfg)
     t_planes = time.perf_counter() - t0
-    s_x = np.asarray(box.size, dtype=np.float64)
-    s_x_norm = max(float(np.linalg.norm(s_x)), EPS)
-    s_x_unit = s_x / s_x_norm
-    rz_box = _rot_z(box.yaw)
+    frames = candidate_frames(obs, planes, extra=0 if paper else cfg.extra_frames)
+    framed = [planes.in_frame(f) for f in frames]
+    s_x_all = np.stack([np.asarray(f.size, dtype=np.float64) for f in frames])
+    s_x_norms = np.maximum(np.linalg.norm(s_x_all, axis=1), EPS)
     hint = obs.front_hint
     front_ok = hint is not None and class_policy(obs.class_name).front_facing and not paper
 
-    # ---- all hypotheses, vectorised per model: (model index, rotation index)
-    rows: list[tuple[int, NDArray[np.float64]]] = []
-    for mi, (entry, _feats) in enumerate(candidates):
-        for rot in orientation_set(entry.class_name, cfg.method):
-            rows.append((mi, rot))
+    # ---- all hypotheses (frame, model, discrete rotation), vectorised
+    rows: list[tuple[int, int, NDArray[np.float64]]] = []
+    for fi in range(len(frames)):
+        for mi, (entry, _feats) in enumerate(candidates):
+            for rot in orientation_set(entry.class_name, cfg.method):
+                rows.append((fi, mi, rot))
     if not rows:
         return MatchResult([], 0, 0, len(planes.normals), time.perf_counter() - t0, {"planes": t_planes})
-    model_idx = np.array([r[0] for r in rows])
-    rots = np.stack([r[1] for r in rows])  # (H, 3, 3) model -> box frame
+    frame_idx = np.array([r[0] for r in rows])
+    model_idx = np.array([r[1] for r in rows])
+    rots = np.stack([r[2] for r in rows])  # (H, 3, 3) model -> box frame
     sizes_m = np.stack([np.asarray(candidates[i][1].box_size, dtype=np.float64) for i in range(len(candidates))])
     s_y = np.einsum("hij,hj->hi", np.abs(rots), sizes_m[model_idx])  # model box size along the box axes
     s_y_norm = np.maximum(np.linalg.norm(s_y, axis=1), EPS)
-    diff = s_x_unit[None, :] - s_y / s_y_norm[:, None]
+    diff = s_x_all[frame_idx] / s_x_norms[frame_idx, None] - s_y / s_y_norm[:, None]
     # Eq. (8): ours takes the Euclidean norm; the paper's implementation an L1 difference.
     d_size = np.abs(diff).sum(axis=1) if paper else np.linalg.norm(diff, axis=1)
     # Eq. (10): d_b = 1 + g . z(y), g = -z; z(y) = where the model's up axis points.
     d_bias = 1.0 - rots[:, 2, 2]
-    map_rots = np.einsum("ij,hjk->hik", rz_box, rots)
+    frame_rots = np.stack([_rot_z(f.yaw) for f in frames])
+    map_rots = np.einsum("hij,hjk->hik", frame_rots[frame_idx], rots)
     if front_ok:
         assert hint is not None
         front = map_rots[:, :2, 0]  # model +x in the map, xy part
@@ -278,8 +323,10 @@ def match_candidates(
         if len(heap) >= k and lower[h] >= -heap[0][0]:
             break
         scored += 1
+        fi = int(frame_idx[h])
         d_plane, assignment = _plane_term(
-            planes, model_planes[model_idx[h]], rots[h], s_x_norm, float(s_y_norm[h]), cfg, normalise=not paper
+            framed[fi], model_planes[model_idx[h]], rots[h], float(s_x_norms[fi]), float(s_y_norm[h]), cfg,
+            normalise=not paper,
         )
         err = float(lower[h] + cfg.w_plane * d_plane)
         item = (-err, int(h), d_plane, assignment)
@@ -295,6 +342,7 @@ def match_candidates(
             MatchCandidate(
                 entry=entry,
                 features=feats,
+                frame=frames[int(frame_idx[h])],
                 box_rotation=rots[h],
                 rotation=map_rots[h],
                 d_size=float(d_size[h]),
@@ -310,7 +358,7 @@ def match_candidates(
 
 
 def _plane_term(
-    obs: ObservedPlanes,
+    obs: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]],
     model: tuple[NDArray[np.float64], NDArray[np.float64]],
     rot: NDArray[np.float64],
     s_x_norm: float,
@@ -327,14 +375,15 @@ def _plane_term(
     observed planes (keeps the weights' meaning independent of how many planes RANSAC found);
     the paper sums.
     """
-    n_obs = len(obs.normals)
+    obs_n, obs_d, obs_support = obs
+    n_obs = len(obs_n)
     if n_obs == 0:
         return 0.0, ()
     n_m, d_m = model
     n_rot = n_m @ rot.T
     support_m = n_rot[:, 2] > SUPPORT_NORMAL_COS
-    cost = np.abs(obs.offsets[:, None] / s_x_norm - d_m[None, :] / s_y_norm) + 1.0 - obs.normals @ n_rot.T
-    forbidden = obs.support[:, None] != support_m[None, :]
+    cost = np.abs(obs_d[:, None] / s_x_norm - d_m[None, :] / s_y_norm) + 1.0 - obs_n @ n_rot.T
+    forbidden = obs_support[:, None] != support_m[None, :]
     big = 1e6
     cost = np.where(forbidden, big, cost)
     # One "unmatched" column per observed plane keeps every row assignable.
@@ -355,7 +404,9 @@ __all__ = [
     "MatchCandidate",
     "MatchResult",
     "ObservedPlanes",
+    "box_in_frame",
     "candidate_classes",
+    "candidate_frames",
     "class_policy",
     "match_candidates",
     "observed_planes",

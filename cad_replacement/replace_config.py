@@ -23,6 +23,9 @@ class CadReplacementConfig:
     method: Method = "ours"
 
     # ------------------------------------------------------------------ matching (Sec. 4.2)
+    #: Ours: extra box frames aligned with the largest vertical observed planes (robust to a box
+    #: tilted by an open door); the paper uses the observed box only.
+    extra_frames: int = 2
     #: Oriented candidates kept after matching. REFERENCE.md: the paper's code keeps k = 20 (the
     #: IJCV text says 10).
     top_k: int = 20
@@ -55,7 +58,7 @@ class CadReplacementConfig:
     screen_fits: int = 6
     screen_max_nfev: int = 6
     #: Ours: candidates kept after screening for the full fit (with articulation).
-    screen_keep: int = 2
+    screen_keep: int = 3
     #: Ours: points (subsample) and CAD samples in the full LM fit, and its LM evaluations.
     align_points: int = 500
     align_model_samples: int = 200
@@ -67,7 +70,11 @@ class CadReplacementConfig:
     robust_scale: float = 0.02
     #: Ours: weight (m per unit log-anisotropy, per point) pulling per-axis scales towards a common
     #: one: CAD proportions are a prior where the data says little (unseen back of an object).
-    anisotropy_weight: float = 0.004
+    anisotropy_weight: float = 0.002
+    #: Ours: weight (per point, dimensionless) of Eq. (13)'s height term: model height = observed
+    #: height from the support to the box top (the top of a tall object is often unseen, so the
+    #: points alone hardly fix the vertical scale).
+    height_weight: float = 0.3
     #: Scale factors are clipped into this range relative to the model (models have real sizes).
     min_scale: float = 0.3
     max_scale: float = 3.0
@@ -79,11 +86,9 @@ class CadReplacementConfig:
     ae_points: int = 2000
     #: Observed points used as surfels for the CAD -> points direction (denser is more exact).
     surfel_points: int = 8000
-    #: A CAD sample counts in the CAD -> points direction when its normal is within this angle
-    #: (cosine) of a direction the observation's normals cover (see ``alignment.observed_directions``).
-    visible_normal_cos: float = 0.85
-    #: Fraction of observed normals a direction bin needs to count as "seen".
-    visible_min_fraction: float = 0.01
+    #: A CAD sample counts in the CAD -> points direction when the observation covers at least
+    #: this fraction of the CAD area facing the sample's direction (``alignment.visible_samples``).
+    visible_min_coverage: float = 0.25
     #: Ours: selection score = AE * (1 + front_ae_factor * front cost) * (1 + class_ae_factor * other class):
     #: a flipped front must fit clearly better to win (it is a tie-breaker, not a veto).
     front_ae_factor: float = 0.5

@@ -177,7 +177,8 @@ def _final_error(
     rigid = Placement(placement.rotation, placement.translation, np.ones(3))
     scene = posed_scene(scaled.mesh(values), rigid)
     pts, nrm = _posed_samples(geom, scaled, placement, values)
-    return alignment_error(prepared, scene, pts, nrm, geom.self_visible, cfg)
+    area = geom.sample_area * float(np.prod(placement.scale)) ** (2.0 / 3.0)
+    return alignment_error(prepared, scene, pts, nrm, geom.self_visible, cfg, area)
 
 
 def replace_object(
@@ -257,7 +258,7 @@ def _align_ours(
     timings: dict[str, float],
 ) -> list[CandidateResult]:
     bottom = obs.bottom_z
-    center_xy = obs.gravity_box.center[:2]
+    height = max(obs.gravity_box.z_max - bottom, 1e-3)
     # Coarse stage 1: every top-k candidate (all yaws of all models) is scored at its box start.
     t = time.perf_counter()
     starts: list[tuple[float, MatchCandidate, AlignmentProblem, NDArray[np.float64]]] = []
@@ -267,19 +268,26 @@ def _align_ours(
         geoms[m.entry.key] = geom
         prob = AlignmentProblem(
             geom, m.rotation, bottom, prepared.screen_points, cfg, prepared=prepared,
-            anisotropy_weight=cfg.anisotropy_weight, model_samples=max(60, cfg.screen_points),
+            anisotropy_weight=cfg.anisotropy_weight, height_target=height, height_weight=cfg.height_weight,
+            model_samples=max(60, cfg.screen_points),
         )
-        x0 = prob.start(box_start_scale(obs, geom, m.box_rotation, bottom), center_xy)
+        x0 = prob.start(box_start_scale(m.frame, geom, m.box_rotation, bottom), m.frame.center[:2])
         starts.append((_rms(prob, x0) * _selection_factor(m, cfg), m, prob, x0))
     starts.sort(key=lambda it: it[0])
     timings["screen_start"] = time.perf_counter() - t
     # Coarse stage 2: a short robust LM on the subsample for the best starts.
     t = time.perf_counter()
     screened: list[tuple[float, MatchCandidate, NDArray[np.float64], float, int]] = []
-    for rank, (score0, m, prob, x0) in enumerate(starts):
-        if rank >= cfg.screen_fits:
+    per_model: dict[str, int] = {}
+    fitted = 0
+    for score0, m, prob, x0 in starts:
+        # Diversity: at most two orientations of one model get the short fit (a round cup's four
+        # equivalent yaws would otherwise fill every slot).
+        if fitted >= cfg.screen_fits or per_model.get(m.entry.key, 0) >= 2:
             screened.append((score0 * 10.0, m, x0, 0.0, 1))  # never fitted: ranked behind the fitted ones
             continue
+        per_model[m.entry.key] = per_model.get(m.entry.key, 0) + 1
+        fitted += 1
         x, cost, nfev = prob.solve(x0, cfg.screen_max_nfev)
         screened.append((_rms(prob, x) * _selection_factor(m, cfg), m, x, cost, nfev))
     timings["screen"] = time.perf_counter() - t
@@ -288,17 +296,22 @@ def _align_ours(
     t = time.perf_counter()
     t_art = 0.0
     results: list[CandidateResult] = []
-    for rank, (score, m, x, cost, nfev) in enumerate(screened):
+    full_count: dict[str, int] = {}
+    for score, m, x, cost, nfev in screened:
         geom = geoms[m.entry.key]
-        if rank >= cfg.screen_keep:
+        # The full fit compares models; at most two orientations of one model (front/back of a
+        # box-like cabinet can be close in screening and are settled by the full two-sided AE).
+        if sum(full_count.values()) >= cfg.screen_keep or full_count.get(m.entry.key, 0) >= 2:
             prob = AlignmentProblem(geom, m.rotation, bottom, prepared.screen_points, cfg)
             pl = prob.placement(x)
             nan_ae = AlignmentError(float(score), float(score), 0.0, 0.0)
             results.append(CandidateResult(m, pl, nan_ae, float(score) * 10.0, {}, "screen", cost, nfev))
             continue
+        full_count[m.entry.key] = full_count.get(m.entry.key, 0) + 1
         prob = AlignmentProblem(
             geom, m.rotation, bottom, prepared.fit_points, cfg, prepared=prepared,
-            anisotropy_weight=cfg.anisotropy_weight, model_samples=cfg.align_model_samples,
+            anisotropy_weight=cfg.anisotropy_weight, height_target=height, height_weight=cfg.height_weight,
+            model_samples=cfg.align_model_samples,
         )
         x2, cost2, nfev2 = prob.solve(x, cfg.align_max_nfev)
         pl = prob.placement(x2)
@@ -328,7 +341,6 @@ def _align_paper(
     timings: dict[str, float],
 ) -> list[CandidateResult]:
     bottom = obs.bottom_z
-    center_xy = obs.gravity_box.center[:2]
     pts = obs.points
     if len(pts) > cfg.paper_max_points:
         rng = np.random.default_rng(cfg.seed)
@@ -338,7 +350,7 @@ def _align_paper(
     for m in matches:
         geom = cache.get(m.entry)
         prob = AlignmentProblem(geom, m.rotation, bottom, pts, cfg, uniform_scale=True, robust=False, two_sided=False)
-        x0 = prob.start(box_start_scale(obs, geom, m.box_rotation, bottom, clip=np.inf), center_xy)
+        x0 = prob.start(box_start_scale(m.frame, geom, m.box_rotation, bottom, clip=np.inf), m.frame.center[:2])
         x, cost, nfev = prob.solve(x0, cfg.align_max_nfev)
         pl = prob.placement(x)
         values = geom.model.zero_configuration()

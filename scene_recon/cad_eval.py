@@ -22,6 +22,7 @@ import trimesh
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
+from cad_replacement.alignment import raycasting_scene
 from cad_replacement.cad.model import CadModel
 from cad_replacement.replace_object import ObjectReplacement
 
@@ -54,8 +55,7 @@ def rotational_symmetry(model: CadModel, tol: float = 0.05, samples: int = 1500)
     pts = np.asarray(pts, dtype=np.float64)
     lo, hi = model.mesh().bounds
     center = 0.5 * (lo + hi)
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)), o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    scene = raycasting_scene(mesh)
     foot = float(np.linalg.norm((hi - lo)[:2]))
 
     def moved(angle: float) -> float:
@@ -138,6 +138,9 @@ def evaluate_object(
     raw = abs(_wrap(ch.yaw - gt_yaw))
     est_size = np.abs(ch.pose[:3, :3]) @ (ch.scale * rep.model.size)
     gt_size = np.abs(gt_pose[:3, :3]) @ gt_model.size
+    if sym == ROUND:  # any yaw is right, so horizontal extents are compared without their direction
+        est_size = np.r_[np.sort(est_size[:2]), est_size[2]]
+        gt_size = np.r_[np.sort(gt_size[:2]), gt_size[2]]
     size_err = float(np.max(np.abs(est_size - gt_size) / np.maximum(gt_size, 1e-6)))
     success = t_err <= TRANSLATION_TOL and np.degrees(yaw_err) <= YAW_TOL_DEG and size_err <= SIZE_TOL
     flip = None if sym in (ROUND, 2, 4) else bool(np.degrees(raw) > 90.0)
