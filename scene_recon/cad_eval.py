@@ -1,12 +1,13 @@
 """Evaluation of stage 4 (CAD replacement) against ground-truth models, poses and joint values.
 
-Pose success per object (the thresholds the project reports): translation of the model origin
-(bottom centre) <= 10 cm, yaw <= 15 deg up to the ground-truth model's rotational symmetry, every
+Pose success per object (the thresholds the project reports): translation of the model box
+centre <= 10 cm, yaw <= 15 deg up to the ground-truth model's rotational symmetry, every
 box extent within 15 %. Symmetry is derived from the geometry, with the movable parts half open
 so that a cabinet's doors break its front/back symmetry: a quarter (half) turn that moves the
 surface by less than ``tol`` of its footprint (mean closest-point distance) makes the object
 4-fold (2-fold) symmetric; invariance under 45 and 90 degrees as well means round (cups,
-bottles: any yaw). A front flip is a yaw error above 90 deg on an object with no 2-fold symmetry.
+bottles: any yaw). Extents are compared along the ground-truth axes. A front flip is a yaw
+error above 90 deg on an object with no 2-fold symmetry.
 Articulation: the multiset of movable joint types must match; joints are paired by the distance
 of their map-frame origins; hinge axes within 10 deg; values within 15 deg / 5 cm.
 """
@@ -73,6 +74,17 @@ def rotational_symmetry(model: CadModel, tol: float = 0.05, samples: int = 1500)
     return 2 if half else 1
 
 
+def extents_along(
+    gt_rotation: NDArray[np.float64], est_rotation: NDArray[np.float64], est_extents: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Estimated model-frame extents reordered onto the ground-truth axes (nearest axis pairing)."""
+    rel = np.abs(np.asarray(gt_rotation).T @ np.asarray(est_rotation))
+    r_idx, c_idx = linear_sum_assignment(-rel)
+    perm = np.zeros((3, 3))
+    perm[r_idx, c_idx] = 1.0
+    return perm @ np.asarray(est_extents, dtype=np.float64)
+
+
 def symmetric_yaw_error(est: float, gt: float, order: int) -> float:
     """|yaw difference| in radians, modulo the symmetry (0 for round objects)."""
     if order == ROUND:
@@ -133,11 +145,17 @@ def evaluate_object(
                           np.inf, False, len(gt_model.movable_joints), 0, 0, t_total, dict(rep.timings))
     ch = rep.chosen
     gt_yaw = float(np.arctan2(gt_pose[1, 0], gt_pose[0, 0]))
-    t_err = float(np.linalg.norm(ch.pose[:3, 3] - gt_pose[:3, 3]))
+    # Box centres, not model origins: a box-like book may match lying on another face, whose
+    # bottom-centre origin sits elsewhere although the object is in the same place.
+    est_center = ch.pose[:3, :3] @ (ch.scale * rep.model.features.box_center) + ch.pose[:3, 3]
+    gt_center = gt_pose[:3, :3] @ gt_model.features.box_center + gt_pose[:3, 3]
+    t_err = float(np.linalg.norm(est_center - gt_center))
     yaw_err = symmetric_yaw_error(ch.yaw, gt_yaw, sym)
     raw = abs(_wrap(ch.yaw - gt_yaw))
-    est_size = np.abs(ch.pose[:3, :3]) @ (ch.scale * rep.model.size)
-    gt_size = np.abs(gt_pose[:3, :3]) @ gt_model.size
+    # Extents along the ground-truth model's axes: the estimated axes are paired with the nearest
+    # ground-truth axes (a signed permutation), so a yaw error does not mix x and y extents.
+    est_size = extents_along(gt_pose[:3, :3], ch.pose[:3, :3], ch.scale * rep.model.size)
+    gt_size = gt_model.size.copy()
     if sym == ROUND:  # any yaw is right, so horizontal extents are compared without their direction
         est_size = np.r_[np.sort(est_size[:2]), est_size[2]]
         gt_size = np.r_[np.sort(gt_size[:2]), gt_size[2]]
@@ -201,6 +219,7 @@ def summarize(evals: list[ObjectEval]) -> dict[str, Any]:
 __all__ = [
     "ObjectEval",
     "evaluate_object",
+    "extents_along",
     "rotational_symmetry",
     "summarize",
     "symmetric_yaw_error",
