@@ -1,0 +1,258 @@
+"""What stage 4 (CAD replacement, paper Sec. 4) knows about one segmented entity, and its front side.
+
+An ``ObjectObservation`` is the input of matching (Sec. 4.2) and alignment (Sec. 4.3): the entity's
+surface points in the map frame (z against gravity), optional normals, its gravity-aligned box
+``B_x`` (paper Sec. 2.1), the height of the plane it stands on (the support constraint of Eq. 11)
+and, optionally, a hint on which horizontal direction its front faces. The paper has no front
+term; without one a closed cabinet and the same cabinet turned by 180 degrees fit the data almost
+equally well, so the hint (open space in front, camera positions) breaks that tie.
+
+Validation happens here, once: every later stage may assume finite float64 points, at least
+``MIN_POINTS`` of them, spanning a non-degenerate (not collinear) set.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+from numpy.typing import ArrayLike, NDArray
+
+from cad_replacement.cad.feature_types import Plane
+from cad_replacement.cad.features import gravity_aligned_box, sample_mesh
+from scene_graph.box import GravityBox
+
+#: Fewest points an observation may have: three define a plane, more are needed to fit 6 parameters.
+MIN_POINTS = 8
+#: Points drawn from a mesh when an observation is built from one.
+MESH_SAMPLES = 4000
+#: Second singular value (m) of the centred points below which they are considered collinear.
+COLLINEAR_TOL = 1e-4
+#: Norm below which a direction is treated as zero.
+EPS = 1e-12
+
+
+class ObservationError(ValueError):
+    """The observation cannot be matched (empty, non-finite or degenerate points, bad fields)."""
+
+
+def _unit2(v: ArrayLike | None) -> NDArray[np.float64] | None:
+    if v is None:
+        return None
+    a = np.asarray(v, dtype=np.float64).reshape(-1)
+    if a.size not in (2, 3) or not np.all(np.isfinite(a)):
+        raise ObservationError(f"front_hint must be a finite 2D direction, got {a.tolist()}")
+    a = a[:2]
+    n = float(np.linalg.norm(a))
+    if n < 1e-9:
+        raise ObservationError("front_hint must be non-zero (use None for 'unknown')")
+    return a / n
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectObservation:
+    """One segmented entity as seen by stage 4 (map frame, z up, float64).
+
+    ``points`` (N, 3): surface samples of the entity; ``normals`` (N, 3) optional outward normals
+    (they sharpen the plane features and tell alignment which sides of the object were seen);
+    ``box``: its gravity-aligned box (computed from the points when omitted); ``support_z``: top
+    of the supporting plane (the model's bottom is put there, Eq. 11's constraint) or ``None``;
+    ``front_hint``: unit xy direction towards open space/the camera, ``None`` when unknown.
+    """
+
+    entity_id: int
+    name: str
+    class_name: str
+    points: NDArray[np.float64]
+    box: GravityBox | None = None
+    normals: NDArray[np.float64] | None = None
+    support_z: float | None = None
+    front_hint: NDArray[np.float64] | None = None
+    mesh: trimesh.Trimesh | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        pts = np.array(self.points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ObservationError(f"{self.name!r}: points must be (N, 3), got shape {pts.shape}")
+        if len(pts) < MIN_POINTS:
+            raise ObservationError(f"{self.name!r}: needs at least {MIN_POINTS} points, got {len(pts)}")
+        if not np.all(np.isfinite(pts)):
+            raise ObservationError(f"{self.name!r}: points contain NaN or inf")
+        centred = pts - pts.mean(axis=0)
+        sv = np.linalg.svd(centred, compute_uv=False)
+        if sv.size < 2 or sv[1] / np.sqrt(len(pts)) < COLLINEAR_TOL:
+            raise ObservationError(f"{self.name!r}: points are degenerate (all on one line or point)")
+        pts.setflags(write=False)
+        object.__setattr__(self, "points", pts)
+        if self.normals is not None:
+            nrm = np.array(self.normals, dtype=np.float64)
+            if nrm.shape != pts.shape or not np.all(np.isfinite(nrm)):
+                raise ObservationError(f"{self.name!r}: normals must be finite and shaped like points")
+            length = np.linalg.norm(nrm, axis=1, keepdims=True)
+            nrm = np.where(length > EPS, nrm / np.maximum(length, EPS), 0.0)
+            nrm.setflags(write=False)
+            object.__setattr__(self, "normals", nrm)
+        if self.box is None:
+            ob = gravity_aligned_box(pts)
+            object.__setattr__(self, "box", GravityBox(ob.center, ob.size, ob.yaw))
+        if self.support_z is not None:
+            z = float(self.support_z)
+            if not np.isfinite(z):
+                raise ObservationError(f"{self.name!r}: support_z must be finite")
+            object.__setattr__(self, "support_z", z)
+        object.__setattr__(self, "front_hint", _unit2(self.front_hint))
+
+    @property
+    def gravity_box(self) -> GravityBox:
+        """The box (always set after construction)."""
+        assert self.box is not None
+        return self.box
+
+    @property
+    def bottom_z(self) -> float:
+        """Where the model's bottom goes: the support plane when known, else the lowest point."""
+        return float(self.support_z) if self.support_z is not None else float(self.points[:, 2].min())
+
+    @classmethod
+    def from_mesh(
+        cls,
+        entity_id: int,
+        name: str,
+        class_name: str,
+        mesh: trimesh.Trimesh,
+        *,
+        samples: int = MESH_SAMPLES,
+        seed: int = 0,
+        **kwargs: object,
+    ) -> ObjectObservation:
+        """Area-uniform surface samples (with face normals) of an entity mesh given in the map frame."""
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            raise ObservationError(f"{name!r}: mesh is empty")
+        pts, nrm = sample_mesh(mesh, samples, seed)
+        return cls(entity_id, name, class_name, pts, normals=nrm, mesh=mesh, **kwargs)  # type: ignore[arg-type]
+
+
+def _side_directions(box: GravityBox) -> NDArray[np.float64]:
+    """(4, 2) outward unit directions of the box sides: +x, +y, -x, -y of the box frame."""
+    c, s = np.cos(box.yaw), np.sin(box.yaw)
+    ex, ey = np.array([c, s]), np.array([-s, c])
+    return np.stack([ex, ey, -ex, -ey])
+
+
+def _ray_box_entry(
+    origins: NDArray[np.float64], direction: NDArray[np.float64], box: GravityBox
+) -> NDArray[np.float64]:
+    """Distance along ``direction`` (xy) from each origin to the footprint of ``box`` (inf if missed)."""
+    local_o = box.to_local_xy(origins)
+    c, s = np.cos(box.yaw), np.sin(box.yaw)
+    d = np.array([c * direction[0] + s * direction[1], -s * direction[0] + c * direction[1]])
+    half = 0.5 * box.size[:2]
+    safe = np.where(np.abs(d) < EPS, EPS, d)
+    t1 = (-half - local_o) / safe
+    t2 = (half - local_o) / safe
+    tmin = np.minimum(t1, t2)
+    tmax = np.maximum(t1, t2)
+    # Axis-parallel rays: inside the slab -> unbounded, outside -> never enters.
+    inside = np.abs(local_o) <= half
+    tmin = np.where(np.abs(d) < EPS, np.where(inside, -np.inf, np.inf), tmin)
+    tmax = np.where(np.abs(d) < EPS, np.where(inside, np.inf, -np.inf), tmax)
+    enter = tmin.max(axis=1)
+    leave = tmax.min(axis=1)
+    hit = (leave >= np.maximum(enter, 0.0)) & np.isfinite(enter)
+    return np.where(hit, np.maximum(enter, 0.0), np.inf)
+
+
+def side_clearances(
+    box: GravityBox,
+    obstacle_boxes: Sequence[GravityBox] = (),
+    wall_planes: Sequence[Plane] = (),
+    *,
+    max_range: float = 3.0,
+    min_height_fraction: float = 0.5,
+) -> NDArray[np.float64]:
+    """Free distance (m) in front of each of the 4 box sides (+x, +y, -x, -y), capped at ``max_range``.
+
+    Three rays per side (the side's centre and quarter points) start on the side face; the side's
+    clearance is the median of their first hits with vertical wall planes and obstacle boxes.
+    Only obstacles that overlap the object's height band and reach at least
+    ``min_height_fraction`` of its height count: a low table in front of a chair does not make the
+    chair's front inaccessible, a wall or a tall cabinet does.
+    """
+    dirs = _side_directions(box)
+    half = 0.5 * box.size[:2]
+    out = np.full(4, max_range)
+    z_lo, z_hi = box.z_min, box.z_max
+    blockers = [
+        o
+        for o in obstacle_boxes
+        if min(o.z_max, z_hi) - max(o.z_min, z_lo) >= min_height_fraction * max(box.size[2], EPS)
+    ]
+    for k in range(4):
+        d = dirs[k]
+        lateral = dirs[(k + 1) % 4]
+        depth = half[k % 2]
+        width = half[(k + 1) % 2]
+        origins = box.center[:2] + d * depth + np.outer([-0.5, 0.0, 0.5], lateral * width)
+        dist = np.full(3, max_range)
+        for w in wall_planes:
+            n2 = np.asarray(w.normal[:2], dtype=np.float64)
+            if np.linalg.norm(n2) < 0.5:  # not a vertical wall
+                continue
+            denom = float(n2 @ d)
+            if abs(denom) < 1e-6:
+                continue
+            t = -(origins @ n2 + w.normal[2] * box.center[2] + w.d) / denom
+            dist = np.minimum(dist, np.where(t >= -0.05, np.maximum(t, 0.0), max_range))
+        for o in blockers:
+            dist = np.minimum(dist, _ray_box_entry(origins, d, o))
+        out[k] = float(np.median(np.minimum(dist, max_range)))
+    return out
+
+
+def front_direction_from_context(
+    box: GravityBox,
+    obstacle_boxes: Sequence[GravityBox] = (),
+    wall_planes: Sequence[Plane] = (),
+    camera_positions: ArrayLike | None = None,
+    *,
+    max_range: float = 3.0,
+    min_margin: float = 0.3,
+    camera_weight: float = 1.0,
+) -> NDArray[np.float64] | None:
+    """Unit xy direction of the box side most likely to be the object's front, or ``None``.
+
+    A functional front must be reachable: a side whose opposite side is against a wall or a tall
+    obstacle is the likely front. Each side scores ``clearance(side) - clearance(opposite)``
+    (both from ``side_clearances``); with camera positions the cosine between the side's
+    direction and the mean direction from the box to the cameras, times ``camera_weight`` (m),
+    is added (the objects were looked at from where people stand). ``None`` when the best score
+    is under ``min_margin``: nothing distinguishes the sides (a table in the middle of a room).
+    """
+    dirs = _side_directions(box)
+    clear = side_clearances(box, obstacle_boxes, wall_planes, max_range=max_range)
+    score = clear - np.roll(clear, 2)
+    if camera_positions is not None:
+        cams = np.asarray(camera_positions, dtype=np.float64).reshape(-1, 3)
+        cams = cams[np.all(np.isfinite(cams), axis=1)]
+        if len(cams):
+            to_cam = cams[:, :2] - box.center[:2]
+            length = np.linalg.norm(to_cam, axis=1, keepdims=True)
+            mean_dir = (to_cam / np.maximum(length, EPS)).mean(axis=0)
+            n = float(np.linalg.norm(mean_dir))
+            if n > 1e-6:
+                score = score + camera_weight * (dirs @ (mean_dir / n))
+    best = int(np.argmax(score))
+    if score[best] < min_margin:
+        return None
+    return dirs[best].copy()
+
+
+__all__ = [
+    "MIN_POINTS",
+    "ObjectObservation",
+    "ObservationError",
+    "front_direction_from_context",
+    "side_clearances",
+]

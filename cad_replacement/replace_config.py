@@ -1,0 +1,121 @@
+"""All tunables of CAD replacement (paper Sec. 4.2-4.3) in one dataclass, with the paper's values.
+
+``method="paper"`` reproduces the paper's anchors (24 orientations for every candidate, L1 box
+term + Hungarian plane term, one dense LM per candidate from its box start, selection by the
+one-sided AE of Sec. 4.3); ``method="ours"`` restricts orientations by gravity, adds a front term,
+fits coarse-to-fine on subsamples with a robust residual, estimates joint values and selects by a
+two-sided AE. Both read their parameters from here so a benchmark can compare them fairly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+Method = Literal["ours", "paper"]
+
+
+@dataclass(frozen=True)
+class CadReplacementConfig:
+    """Parameters of matching, alignment, articulation and selection (lengths in metres)."""
+
+    #: "ours" (gravity-restricted, coarse-to-fine, two-sided AE) or "paper" (Sec. 4.2-4.3 anchors).
+    method: Method = "ours"
+
+    # ------------------------------------------------------------------ matching (Sec. 4.2)
+    #: Ours: extra box frames aligned with the largest vertical observed planes (robust to a box
+    #: tilted by an open door); the paper uses the observed box only.
+    extra_frames: int = 2
+    #: Oriented candidates kept after matching. REFERENCE.md: the paper's code keeps k = 20 (the
+    #: IJCV text says 10).
+    top_k: int = 20
+    #: Eq. (7) weights: omega_1 (box size, Eq. 8), omega_2 (planes, Eq. 9), omega_3 (bias, Eq. 10);
+    #: the paper sets 1.0, 1.0 and 0.2.
+    w_size: float = 1.0
+    w_plane: float = 1.0
+    w_bias: float = 0.2
+    #: Ours: weight of the front term (model front vs ``front_hint``; 0 aligned .. w_front opposite).
+    w_front: float = 0.5
+    #: Ours: matching penalty of a model from an interchangeable (confusable) class rather than the
+    #: observed one: the detector's label is trusted unless the geometry clearly says otherwise.
+    w_class: float = 0.1
+    #: Ours: Eq. (9) cost of an observed plane left without a partner (|Pi_x| > |Pi_y|). Kept small:
+    #: CAD feature lists hold only the dominant planes (a table lists its top), so a missing partner
+    #: is weak evidence. The paper's bijection matches the smaller set only (cost 0 here).
+    plane_unmatched_cost: float = 0.3
+    #: RANSAC on the observation (Sec. 4.1 uses 3 cm, 200 iterations, 10 % stop fraction); ``None``:
+    #: min(3 cm, 2 % of the box diagonal) as for CAD models, so small objects get planes too.
+    plane_distance: float | None = None
+    plane_iterations: int = 200
+    plane_min_fraction: float = 0.10
+    #: Points given to RANSAC (a random subsample; planes need far fewer than alignment).
+    plane_samples: int = 1500
+
+    # ------------------------------------------------------------------ alignment (Sec. 4.3)
+    #: Ours, coarse stage: every top-k candidate is scored at its box start on ``screen_points``;
+    #: the best ``screen_fits`` get a short LM of ``screen_max_nfev`` evaluations.
+    screen_points: int = 150
+    screen_fits: int = 6
+    screen_max_nfev: int = 6
+    #: Ours: candidates kept after screening for the full fit (with articulation).
+    screen_keep: int = 3
+    #: Ours: points (subsample) and CAD samples in the full LM fit, and its LM evaluations.
+    align_points: int = 500
+    align_model_samples: int = 200
+    align_max_nfev: int = 30
+    #: Paper: points used by its dense LM (all of them, capped for memory).
+    paper_max_points: int = 4000
+    #: Robust scale tau (m) of the soft-L1 residual of ours: points farther than ~tau from the CAD
+    #: surface (an open door fitted with a closed model, clutter) stop pulling the fit.
+    robust_scale: float = 0.02
+    #: Ours: weight (m per unit log-anisotropy, per point) pulling per-axis scales towards a common
+    #: one: CAD proportions are a prior where the data says little (unseen back of an object).
+    anisotropy_weight: float = 0.002
+    #: Ours: weight (per point, dimensionless) of Eq. (13)'s height term: model height = observed
+    #: height from the support to the box top (the top of a tall object is often unseen, so the
+    #: points alone hardly fix the vertical scale).
+    height_weight: float = 0.3
+    #: Scale factors are clipped into this range relative to the model (models have real sizes).
+    min_scale: float = 0.3
+    max_scale: float = 3.0
+
+    # ------------------------------------------------------------------ alignment error (AE)
+    #: CAD surface samples per model for the CAD -> points direction of the AE.
+    ae_model_samples: int = 1200
+    #: Observed points used to evaluate AE (random subsample; all when fewer).
+    ae_points: int = 2000
+    #: Observed points used as surfels for the CAD -> points direction (denser is more exact).
+    surfel_points: int = 8000
+    #: A CAD sample counts in the CAD -> points direction when the observation covers at least
+    #: this fraction of the CAD area facing the sample's direction (``alignment.visible_samples``).
+    visible_min_coverage: float = 0.25
+    #: Ours: selection score = AE * (1 + front_ae_factor * front cost) * (1 + class_ae_factor * other class):
+    #: a flipped front must fit clearly better to win (it is a tie-breaker, not a veto).
+    front_ae_factor: float = 0.5
+    class_ae_factor: float = 0.25
+
+    # ------------------------------------------------------------------ articulation
+    #: Coarse grid values per joint, then refinement values around the best.
+    joint_grid: int = 12
+    joint_refine: int = 7
+    #: Points (not explained by the rest of the model) used per joint.
+    joint_points: int = 200
+    #: Coordinate-descent passes over the joints.
+    joint_passes: int = 1
+
+    #: Random seed of every subsample (deterministic results).
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.method not in ("ours", "paper"):
+            raise ValueError(f"method must be 'ours' or 'paper', got {self.method!r}")
+        for name in ("top_k", "screen_keep", "screen_points", "align_points", "joint_grid", "ae_points"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1")
+        if not 0.0 < self.min_scale < 1.0 < self.max_scale:
+            raise ValueError("need 0 < min_scale < 1 < max_scale")
+        if self.robust_scale <= 0.0:
+            raise ValueError("robust_scale must be positive")
+
+
+__all__ = ["CadReplacementConfig", "Method"]
