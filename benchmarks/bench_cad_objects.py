@@ -28,15 +28,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import write_result
 from cad_replacement.alignment import GeometryCache
-from cad_replacement.cad.feature_types import Plane
 from cad_replacement.cad.procedural import build_model
 from cad_replacement.matching import candidate_classes
 from cad_replacement.observation import ObjectObservation, front_direction_from_context
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replace_object import replace_object
 from cad_replacement.seeded_library import SeededLibrary
-from scene_graph.box import GravityBox
-from scene_recon.cad_eval import evaluate_object, rotational_symmetry, summarize
+from recon_core.geometry.plane import Plane
+from scene_recon.evaluation.cad_metrics import evaluate_object, rotational_symmetry, summarize
 from scene_recon.synthetic.scene import GroundTruthScene
 from scene_recon.synthetic.suite import SUITE, suite_scene
 
@@ -59,7 +58,7 @@ def wall_planes(scene: GroundTruthScene) -> list[Plane]:
 
 def observations(scene: GroundTruthScene, samples: int) -> list[tuple[ObjectObservation, object]]:
     things = [e for e in scene.entities if e.is_thing and e.model_seed is not None]
-    boxes = {e.name: GravityBox.from_any(e.box) for e in things}
+    boxes = {e.name: e.box for e in things}
     walls = wall_planes(scene)
     out = []
     for e in things:

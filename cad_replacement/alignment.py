@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import open3d as o3d
+import open3d.core as o3c
 import trimesh
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
@@ -45,7 +46,7 @@ from scipy.spatial import cKDTree
 
 from cad_replacement.cad.library import CadEntry
 from cad_replacement.cad.model import CadModel
-from scene_graph.box import GravityBox
+from recon_core.geometry.box import GravityBox
 
 from .observation import ObjectObservation
 from .replace_config import CadReplacementConfig
@@ -81,8 +82,8 @@ def raycasting_scene(mesh: trimesh.Trimesh) -> o3d.t.geometry.RaycastingScene:
     scene = o3d.t.geometry.RaycastingScene()
     if len(mesh.faces):
         scene.add_triangles(
-            o3d.core.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
-            o3d.core.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)),
+            o3c.Tensor(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
+            o3c.Tensor(np.ascontiguousarray(mesh.faces, dtype=np.uint32)),
         )
     return scene
 
@@ -93,7 +94,7 @@ def closest_points(
     """Closest surface points and their face normals (float64) for (N, 3) query points."""
     if len(points) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3))
-    res = scene.compute_closest_points(o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32)))
+    res = scene.compute_closest_points(o3c.Tensor(np.ascontiguousarray(points, dtype=np.float32)))
     return res["points"].numpy().astype(np.float64), res["primitive_normals"].numpy().astype(np.float64)
 
 
@@ -153,7 +154,7 @@ class ModelGeometry:
         pts = np.einsum("nij,nj->ni", rot[li], lp) + trans[li]
         nrm = np.einsum("nij,nj->ni", rot[li], ln)
         rays = np.c_[pts + RAY_OFFSET * nrm, nrm].astype(np.float32)
-        hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        hit = scene.cast_rays(o3c.Tensor(rays))["t_hit"].numpy()
         lo, hi = whole.bounds
         return cls(
             key=key,
@@ -275,7 +276,7 @@ def observed_area_per_bin(normals: NDArray[np.float64], area_per_point: float) -
     if not np.any(valid):
         return np.full(len(DIRECTION_BINS), np.inf)  # nothing known: every side counts as seen
     counts = np.bincount(direction_bin(normals[valid]), minlength=len(DIRECTION_BINS))
-    return counts * area_per_point
+    return counts.astype(np.float64) * float(area_per_point)
 
 
 def visible_samples(
@@ -656,11 +657,11 @@ def alignment_error(
         facing = normals_map[idx] @ v > 0.0
         origins = samples_map[idx] + VIEW_DISTANCE * v
         rays = np.c_[origins, np.broadcast_to(-v, origins.shape)].astype(np.float32)
-        t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        t_hit = scene.cast_rays(o3c.Tensor(rays))["t_hit"].numpy()
         seen = facing & (t_hit >= VIEW_DISTANCE - 5e-3)
         vis = vis.copy()
         vis[idx[~seen]] = False
-    d_obs = scene.compute_distance(o3d.core.Tensor(pts.astype(np.float32))).numpy().astype(np.float64)
+    d_obs = scene.compute_distance(o3c.Tensor(pts.astype(np.float32))).numpy().astype(np.float64)
     d_mod = surfel_distance(prepared, samples_map[vis], normals_map[vis])
     both = np.concatenate([d_obs, d_mod])
     rms = lambda v: float(np.sqrt(np.mean(v * v))) if len(v) else 0.0  # noqa: E731

@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import open3d as o3d
+import open3d.core as o3c
 from numpy.typing import NDArray
 
 from cad_replacement.cad.model import CadModel, Joint
@@ -79,7 +79,7 @@ class _LinkScenes:
         if scene is None or len(points) == 0:
             return np.full(len(points), np.inf)
         local = (points - world_pose[:3, 3]) @ world_pose[:3, :3]
-        return scene.compute_distance(o3d.core.Tensor(local.astype(np.float32))).numpy().astype(np.float64)
+        return scene.compute_distance(o3c.Tensor(local.astype(np.float32))).numpy().astype(np.float64)
 
     def distance_batch(
         self, link: str, world_poses: NDArray[np.float64], points: NDArray[np.float64]
@@ -91,7 +91,7 @@ class _LinkScenes:
         # Inverse rigid transform per grid pose: R^T (x - t), batched over (G, N).
         local = np.einsum("gnj,gji->gni", points[None, :, :] - world_poses[:, None, :3, 3], world_poses[:, :3, :3])
         flat = local.reshape(-1, 3).astype(np.float32)
-        d = scene.compute_distance(o3d.core.Tensor(flat)).numpy().astype(np.float64)
+        d = scene.compute_distance(o3c.Tensor(flat)).numpy().astype(np.float64)
         return d.reshape(len(world_poses), len(points))
 
 

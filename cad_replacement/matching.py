@@ -34,11 +34,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
-from cad_replacement.cad.classes import ClassTable, UnknownClassError, load_class_table
-from cad_replacement.cad.feature_types import SUPPORT_NORMAL_COS, ModelFeatures
-from cad_replacement.cad.features import extract_planes
+from cad_replacement.cad.feature_types import ModelFeatures
 from cad_replacement.cad.library import CadEntry
-from scene_graph.box import GravityBox
+from recon_core.classes import ClassTable, load_class_table
+from recon_core.errors import UnknownClassError
+from recon_core.geometry.box import GravityBox
+from recon_core.geometry.plane import SUPPORT_NORMAL_COS
+from recon_core.geometry.plane_fit import extract_planes
 
 from .observation import ObjectObservation
 from .replace_config import CadReplacementConfig

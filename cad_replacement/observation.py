@@ -20,9 +20,10 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
-from cad_replacement.cad.feature_types import Plane
-from cad_replacement.cad.features import gravity_aligned_box, sample_mesh
-from scene_graph.box import GravityBox
+from recon_core.geometry.box import GravityBox
+from recon_core.geometry.box_fit import fit_gravity_box
+from recon_core.geometry.plane import Plane
+from recon_core.geometry.plane_fit import sample_mesh
 
 #: Fewest points an observation may have: three define a plane, more are needed to fit 6 parameters.
 MIN_POINTS = 8
@@ -95,8 +96,7 @@ class ObjectObservation:
             nrm.setflags(write=False)
             object.__setattr__(self, "normals", nrm)
         if self.box is None:
-            ob = gravity_aligned_box(pts)
-            object.__setattr__(self, "box", GravityBox(ob.center, ob.size, ob.yaw))
+            object.__setattr__(self, "box", fit_gravity_box(pts))
         if self.support_z is not None:
             z = float(self.support_z)
             if not np.isfinite(z):

@@ -25,10 +25,10 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from cad_replacement.cad.classes import ClassTable
 from cad_replacement.cad.feature_types import ModelFeatures
 from cad_replacement.cad.library import CadEntry
 from cad_replacement.cad.model import CadModel
+from recon_core.classes import ClassTable
 
 from .alignment import (
     AlignmentError,

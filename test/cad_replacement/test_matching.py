@@ -17,8 +17,8 @@ from cad_replacement.observation import ObjectObservation, ObservationError, fro
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replace_object import replace_object
 from cad_replacement.seeded_library import SeededLibrary
-from scene_graph.box import GravityBox
-from scene_recon.cad_eval import ROUND, extents_along, rotational_symmetry, symmetric_yaw_error
+from recon_core.geometry.box import GravityBox
+from scene_recon.evaluation.cad_metrics import ROUND, extents_along, rotational_symmetry, symmetric_yaw_error
 
 CLASSES = ["fridge", "cabinet", "table", "chair", "cup", "shelf", "microwave"]
 LIB_CLASSES = sorted({*CLASSES, "wardrobe", "dishwasher", "desk", "sofa", "bottle", "oven"})
@@ -161,7 +161,7 @@ def test_orientation_sets_respect_gravity() -> None:
 
 
 def test_front_direction_from_wall_and_camera() -> None:
-    from cad_replacement.cad.feature_types import Plane
+    from recon_core.geometry.plane import Plane
 
     box = GravityBox([0.0, 0.0, 0.5], [0.6, 0.8, 1.0], 0.0)
     wall = Plane(normal=[1.0, 0.0, 0.0], d=0.32)  # x = -0.32: just behind the -x side
