@@ -20,6 +20,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
+from recon_core.errors import InputError
 from recon_core.geometry.box import GravityBox
 from recon_core.geometry.box_fit import fit_gravity_box
 from recon_core.geometry.plane import Plane
@@ -35,7 +36,7 @@ COLLINEAR_TOL = 1e-4
 EPS = 1e-12
 
 
-class ObservationError(ValueError):
+class ObservationError(InputError):
     """The observation cannot be matched (empty, non-finite or degenerate points, bad fields)."""
 
 

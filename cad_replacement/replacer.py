@@ -1,0 +1,273 @@
+"""Stage 4 as one ROS-free pipeline: contact graph + node geometry -> a replaced, interactive scene.
+
+``CadReplacer.replace(graph, entities)`` walks the contact graph from the root (parents first):
+
+* layout nodes (floor, walls, ceiling) become box models fitted to their boxes (a floor seen as a
+  plane still gets a slab to stand on);
+* every object node becomes an ``ObjectObservation`` (its mesh samples, its refined gravity box,
+  the height of the supporting plane of its support edge (Eq. 11's constraint), the side facing
+  open space) and goes through ``replace_object`` (matching Eqs. 7-10, alignment Eqs. 11-14,
+  articulation); the ranked candidates go to the global physical check (Sec. 4.4), which picks one
+  per object and rests it on its support;
+* an object whose class has no CAD model keeps its observed mesh as a one-link model, so nothing
+  mapped is lost from the scene.
+
+Cost follows what changed: results are cached per node by (entity revision, parent, box), so an
+update of one entity re-matches that entity only; models and their ray-casting scenes are built
+once per library model (``GeometryCache``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from cad_replacement.alignment import GeometryCache
+from cad_replacement.cad.model import CadModel, Link, bounding_box_features
+from cad_replacement.layout_models import MIN_LAYOUT_THICKNESS, box_model
+from cad_replacement.observation import ObjectObservation, ObservationError, front_direction_from_context
+from cad_replacement.replace_config import CadReplacementConfig
+from cad_replacement.replace_object import CadSource, ObjectReplacement, replace_object
+from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
+from recon_core.classes import ClassTable, load_class_table
+from recon_core.contact_graph import ContactGraph, GraphNode, SupportEdge
+from recon_core.entity import Entity
+from recon_core.geometry.box import GravityBox
+from recon_core.geometry.plane import Plane
+
+log = logging.getLogger(__name__)
+
+LAYOUT = "layout"
+#: Colour of objects kept as their observed mesh (no CAD model for their class).
+OBSERVED_RGBA = (0.55, 0.6, 0.7, 1.0)
+
+#: A global physical check: (scene of first choices, ranked alternatives per object name) -> scene.
+PhysicalCheck = Callable[[ReplacedScene, Mapping[str, list[PlacedObject]]], ReplacedScene]
+
+
+@dataclass
+class ReplacementRecord:
+    """What ``replacement.json`` says about one node: its candidates, the choice and the timings."""
+
+    node_id: int
+    name: str
+    class_name: str
+    kind: str  # "cad" | "layout" | "observed_mesh"
+    cad_id: str = ""
+    candidates: list[dict[str, Any]] = field(default_factory=list)
+    pose: list[list[float]] = field(default_factory=list)
+    scale: list[float] = field(default_factory=list)
+    joint_values: dict[str, float] = field(default_factory=dict)
+    alignment_error: float | None = None
+    matching_error: float | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+    message: str = ""
+    reused: bool = False
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class ReplacementResult:
+    scene: ReplacedScene
+    records: list[ReplacementRecord]
+    timings: dict[str, float]
+
+    @property
+    def rematched(self) -> int:
+        return sum(1 for r in self.records if r.kind == "cad" and not r.reused)
+
+
+@dataclass
+class _Cached:
+    key: tuple[Any, ...]
+    replacement: ObjectReplacement | None
+    record: ReplacementRecord
+
+
+def support_height(edge: SupportEdge | None, parent_box: GravityBox | None) -> float | None:
+    """z of the supporting plane of a support edge (horizontal planes only), else the parent's top."""
+    plane: Plane | None = edge.plane if edge is not None else None
+    if plane is not None and plane.normal[2] > 0.9:
+        return float(-plane.d / plane.normal[2])
+    return None if parent_box is None else parent_box.z_max
+
+
+def layout_object(node: GraphNode) -> PlacedObject | None:
+    """A box model for a layout node; the floor's top stays where the floor surface was seen."""
+    if node.box is None:
+        return None
+    box = node.box
+    size = np.maximum(np.asarray(box.size, dtype=np.float64), MIN_LAYOUT_THICKNESS)
+    pose = box.pose()
+    pose[2, 3] = box.z_max - size[2] if node.class_name == "floor" else box.z_min
+    return PlacedObject(node.name, node.class_name, box_model(node.class_name, size), pose, entity_id=node.id,
+                        cad_id=f"box/{node.class_name}")
+
+
+def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: str) -> PlacedObject | None:
+    """The observed mesh itself as a one-link model (origin at the bottom centre of its box)."""
+    if not entity.has_faces or node.box is None:
+        return None
+    pose = node.box.bottom_pose()
+    mesh = entity.mesh().copy()
+    mesh.apply_transform(np.linalg.inv(pose))
+    model = CadModel(node.class_name, f"observed_{node.id}", (Link("body", mesh, OBSERVED_RGBA),), (),
+                     bounding_box_features(mesh), source="observed")
+    return PlacedObject(node.name, node.class_name, model, pose, parent=parent, support=support,
+                        movable=node.movable, entity_id=node.id, cad_id="observed")
+
+
+def rest_on(obj: PlacedObject, z: float) -> None:
+    """Move ``obj`` vertically so its lowest point (at its joint values) is at height ``z``."""
+    meshes = obj.model.posed_link_meshes(obj.joint_values)
+    lows = [float((np.asarray(m.vertices) @ obj.pose[:3, :3].T)[:, 2].min()) for m in meshes.values()
+            if len(m.vertices)]
+    if lows:
+        obj.pose[2, 3] = z - min(lows)
+
+
+class CadReplacer:
+    """Contact graph + node entities -> ``ReplacedScene``; incremental across calls."""
+
+    def __init__(self, library: CadSource, config: CadReplacementConfig | None = None,
+                 class_table: ClassTable | None = None, physical_check: PhysicalCheck | None = None) -> None:
+        self.library = library
+        self.config = config or CadReplacementConfig()
+        self.class_table = class_table or load_class_table()
+        self.physical_check = physical_check
+        self.cache = GeometryCache(library.model, samples=self.config.ae_model_samples)
+        self._results: dict[int, _Cached] = {}
+
+    # ------------------------------------------------------------------ per node
+    def _observation(self, node: GraphNode, entity: Entity, graph: ContactGraph,
+                     walls: list[Plane], obstacles: list[GravityBox]) -> ObjectObservation:
+        edge = graph.supports.get(node.id)
+        parent = graph.nodes.get(edge.parent_id) if edge is not None else None
+        box = node.box
+        assert box is not None
+        front = front_direction_from_context(box, [b for b in obstacles if b is not box], walls)
+        mesh = trimesh.Trimesh(entity.vertices, entity.faces, process=False)
+        return ObjectObservation.from_mesh(node.id, node.name, node.class_name, mesh, box=box,
+                                           support_z=support_height(edge, parent.box if parent else None),
+                                           front_hint=front)
+
+    def _replace_node(self, node: GraphNode, entity: Entity, graph: ContactGraph, walls: list[Plane],
+                      obstacles: list[GravityBox]) -> _Cached:
+        edge = graph.supports.get(node.id)
+        box_key = None if node.box is None else tuple(
+            float(v) for v in np.round(np.r_[node.box.center, node.box.size, node.box.yaw], 4))
+        key: tuple[Any, ...] = (entity.revision, len(entity.vertices), edge.parent_id if edge else None, box_key)
+        cached = self._results.get(node.id)
+        if cached is not None and cached.key == key:
+            cached.record.reused = True
+            return cached
+        record = ReplacementRecord(node.id, node.name, node.class_name, "cad")
+        replacement: ObjectReplacement | None = None
+        try:
+            obs = self._observation(node, entity, graph, walls, obstacles)
+            replacement = replace_object(obs, self.library, self.config, cache=self.cache,
+                                         class_table=self.class_table)
+            record.timings = dict(replacement.timings)
+            record.message = replacement.message
+            record.candidates = [
+                {"cad_id": c.key, "class_name": c.class_name, "matching_error": c.matching_error,
+                 "alignment_error": c.ae.ae, "score": c.score, "stage": c.stage, "scale": c.scale.tolist(),
+                 "yaw": c.yaw}
+                for c in replacement.candidates]
+        except ObservationError as exc:
+            record.message = f"not matched: {exc}"
+        result = _Cached(key, replacement, record)
+        self._results[node.id] = result
+        return result
+
+    # ------------------------------------------------------------------ scene
+    def replace(self, graph: ContactGraph, entities: Mapping[int, Entity], name: str = "") -> ReplacementResult:
+        """Replace every node of ``graph`` (``entities``: node id -> its geometry in the map frame)."""
+        t0 = time.perf_counter()
+        graph.validate()
+        walls = [p.plane for n in graph.nodes.values() if n.category == LAYOUT and n.class_name == "wall"
+                 for p in n.planes if abs(p.plane.normal[2]) < 0.3]
+        obstacles = [n.box for n in graph.nodes.values() if n.box is not None and n.id != graph.root_id]
+        objects: list[PlacedObject] = []
+        records: list[ReplacementRecord] = []
+        alternatives: dict[str, list[PlacedObject]] = {}
+        names = {nid: n.name for nid, n in graph.nodes.items()}
+        placed: set[str] = set()
+        for nid, _depth in graph.walk():
+            if nid == graph.root_id:
+                continue
+            node = graph.nodes[nid]
+            edge = graph.supports.get(nid)
+            parent = MAP_ROOT if edge is None or edge.parent_id == graph.root_id else names[edge.parent_id]
+            if parent != MAP_ROOT and parent not in placed:
+                parent = MAP_ROOT  # the parent could not be placed: the object stands on the map
+            support = edge.joint if edge is not None and edge.joint in ("fixed", "floating") else "fixed"
+            obj: PlacedObject | None
+            if node.category == LAYOUT:
+                obj = layout_object(node)
+                record = ReplacementRecord(nid, node.name, node.class_name, "layout", cad_id="box")
+            else:
+                entity = entities.get(nid)
+                if entity is None or entity.is_empty:
+                    records.append(ReplacementRecord(nid, node.name, node.class_name, "skipped",
+                                                     message="no geometry for this node"))
+                    continue
+                cached = self._replace_node(node, entity, graph, walls, obstacles)
+                record = cached.record
+                obj = self._placed(node, cached.replacement, parent, support)
+                if obj is None:
+                    obj = observed_mesh_object(node, entity, parent, support)
+                    record.kind = "observed_mesh"
+                elif cached.replacement is not None:
+                    alternatives[obj.name] = [a for a in (self._placed(node, cached.replacement, parent, support, k)
+                                                          for k in range(1, len(cached.replacement.candidates)))
+                                              if a is not None]
+            if obj is None:
+                record.kind = "skipped"
+                records.append(record)
+                continue
+            if node.category != LAYOUT and edge is not None:
+                z = support_height(edge, graph.nodes[edge.parent_id].box)
+                if z is not None:
+                    rest_on(obj, z)
+            record.pose = obj.pose.tolist()
+            record.scale = obj.scale.tolist()
+            record.joint_values = dict(obj.joint_values)
+            record.cad_id = record.cad_id or obj.cad_id
+            objects.append(obj)
+            placed.add(obj.name)
+            records.append(record)
+        scene = ReplacedScene(name or graph.name or "scene", objects, frame_id=graph.frame_id)
+        scene.validate()
+        t1 = time.perf_counter()
+        if self.physical_check is not None:
+            scene = self.physical_check(scene, alternatives)
+        t2 = time.perf_counter()
+        live = {n.id for n in graph.nodes.values()}
+        for stale in set(self._results) - live:
+            del self._results[stale]
+        return ReplacementResult(scene, records, {"objects_s": t1 - t0, "physical_check_s": t2 - t1,
+                                                  "total_s": t2 - t0})
+
+    def _placed(self, node: GraphNode, rep: ObjectReplacement | None, parent: str, support: str,
+                index: int = 0) -> PlacedObject | None:
+        """The ``index``-th ranked candidate of ``rep`` as a placed object (None when there is none)."""
+        if rep is None or index >= len(rep.candidates):
+            return None
+        cand = rep.candidates[index]
+        model = self.cache.get(cand.match.entry).model.scaled(cand.scale)
+        return PlacedObject(node.name, cand.class_name, model, cand.pose.copy(), parent=parent, support=support,
+                            movable=node.movable, entity_id=node.id, joint_values=dict(cand.joint_values),
+                            scale=cand.scale, cad_id=cand.key)
+
+
+__all__ = ["CadReplacer", "PhysicalCheck", "ReplacementRecord", "ReplacementResult", "layout_object",
+           "observed_mesh_object", "rest_on", "support_height"]
