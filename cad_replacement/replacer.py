@@ -163,7 +163,7 @@ class CadReplacer:
                       obstacles: list[GravityBox]) -> _Cached:
         edge = graph.supports.get(node.id)
         box_key = None if node.box is None else tuple(
-            float(v) for v in np.round(np.r_[node.box.center, node.box.size, node.box.yaw], 4))
+            round(float(v), 4) for v in (*node.box.center, *node.box.size, node.box.yaw))
         key: tuple[Any, ...] = (entity.revision, len(entity.vertices), edge.parent_id if edge else None, box_key)
         cached = self._results.get(node.id)
         if cached is not None and cached.key == key:
