@@ -100,7 +100,7 @@ def support_height(edge: SupportEdge | None, parent_box: GravityBox | None) -> f
     return None if parent_box is None else parent_box.z_max
 
 
-def layout_object(node: GraphNode) -> PlacedObject | None:
+def layout_object(node: GraphNode, parent: str = MAP_ROOT) -> PlacedObject | None:
     """A box model for a layout node; the floor's top stays where the floor surface was seen."""
     if node.box is None:
         return None
@@ -108,8 +108,8 @@ def layout_object(node: GraphNode) -> PlacedObject | None:
     size = np.maximum(np.asarray(box.size, dtype=np.float64), MIN_LAYOUT_THICKNESS)
     pose = box.pose()
     pose[2, 3] = box.z_max - size[2] if node.class_name == "floor" else box.z_min
-    return PlacedObject(node.name, node.class_name, box_model(node.class_name, size), pose, entity_id=node.id,
-                        cad_id=f"box/{node.class_name}")
+    return PlacedObject(node.name, node.class_name, box_model(node.class_name, size), pose, parent=parent,
+                        entity_id=node.id, cad_id=f"box/{node.class_name}")
 
 
 def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: str) -> PlacedObject | None:
@@ -212,7 +212,7 @@ class CadReplacer:
             support = edge.joint if edge is not None and edge.joint in ("fixed", "floating") else "fixed"
             obj: PlacedObject | None
             if node.category == LAYOUT:
-                obj = layout_object(node)
+                obj = layout_object(node, parent)
                 record = ReplacementRecord(nid, node.name, node.class_name, "layout", cad_id="box")
             else:
                 entity = entities.get(nid)

@@ -8,8 +8,10 @@ from scene_recon.commands import (
     graph_cmd,
     inspect_cmd,
     map_cmd,
+    replace_cmd,
     suite_cmd,
 )
 
 #: In pipeline order: what `--help` lists.
-COMMANDS = [demo_cmd, generate_cmd, suite_cmd, inspect_cmd, map_cmd, eval_map_cmd, graph_cmd, eval_graph_cmd]
+COMMANDS = [demo_cmd, generate_cmd, suite_cmd, inspect_cmd, map_cmd, eval_map_cmd, graph_cmd, eval_graph_cmd,
+            replace_cmd]

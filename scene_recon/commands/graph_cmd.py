@@ -34,6 +34,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from recon_core.entity import save_entities
     from recon_core.errors import InputError
     from scene_graph.builder import ContactGraphBuilder
     from scene_graph.config import load_scene_graph_config
@@ -70,7 +71,10 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("out") / "graph" / safe
     out.mkdir(parents=True, exist_ok=True)
     graph_path = graph.save(out / "contact_graph.json")
-    files = {"graph": str(graph_path)}
+    # the geometry behind every node (split walls, merged objects): what CAD replacement aligns to
+    node_dir = save_entities(list(builder.node_entities().values()), out / "nodes", graph.frame_id,
+                             graph.name).parent
+    files = {"graph": str(graph_path), "node_entities": str(node_dir)}
     if not args.no_picture:
         from scene_graph.draw import draw_graph
 
