@@ -29,7 +29,7 @@ def replaced():
 
 
 def test_every_node_is_placed_with_its_support(replaced):
-    scene, graph, _nodes, _replacer, result = replaced
+    _scene, graph, _nodes, _replacer, result = replaced
     placed = {o.name: o for o in result.scene}
     assert set(placed) == {n.name for nid, n in graph.nodes.items() if nid != graph.root_id}
     for nid, edge in graph.supports.items():
