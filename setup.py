@@ -54,6 +54,7 @@ setup(
             "scene-recon = scene_recon.cli:main",
             "rgbd_player = ros_nodes.rgbd_player:main",
             "contact_graph_node = ros_nodes.contact_graph_node:main",
+            "cad_replacer = ros_nodes.cad_replacer_node:main",
             "panoptic_mapper = ros_nodes.mapper_node:main",
             "segmentation_service = ros_nodes.segmentation_service:main",
         ],

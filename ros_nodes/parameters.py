@@ -52,6 +52,9 @@ def parameter_type(annotation: Any) -> Parameter.Type | None:
     """ROS parameter type of a config field's annotation; None when ROS has no such type (mappings)."""
     if annotation in _SCALAR_TYPES:
         return _SCALAR_TYPES[annotation]
+    if typing.get_origin(annotation) is typing.Literal:
+        kinds = {type(a) for a in typing.get_args(annotation)}
+        return _SCALAR_TYPES.get(kinds.pop()) if len(kinds) == 1 else None
     if typing.get_origin(annotation) in (list, tuple):
         args = typing.get_args(annotation)
         if args and args[0] in _ARRAY_TYPES:

@@ -1,0 +1,274 @@
+"""`cad_replacer`: stage 4 (CAD replacement) as a ROS 2 node over ``cad_replacement``.
+
+Inputs: ``contact_graph`` (scene_recon_interfaces/ContactGraph, latched) and ``panoptic_entities``
+(PanopticEntityArray: the geometry behind the nodes). After every graph update the replacer
+re-matches only the entities whose revision, parent or box changed and republishes:
+
+* ``robot_description`` (std_msgs/String, transient-local): the scene URDF, root ``map``, link meshes
+  as ``file://`` URIs under ``output_dir`` (RViz's RobotModel and planners load it as it is);
+* ``/tf_static``: the fixed joints; ``/tf`` (every ``tf_period_s``): the floating joints of movable
+  objects and the articulated joints at their current values;
+* ``joint_states`` (sensor_msgs/JointState): the movable joints (revolute/prismatic);
+* ``cad_markers`` (MarkerArray, latched): every link as a MESH_RESOURCE marker in the map frame.
+
+Services: ``apply_scene_action`` (ApplySceneAction: set a joint, move, re-parent; validated by
+``cad_replacement.actions``, a refused action changes nothing) and ``export_scene`` (std_srvs/Trigger:
+writes scene.urdf + joint_states.json + replacement.json into ``output_dir``; the message names it).
+Every publication carries the scene revision in the URDF (``<!-- revision N -->``) and in the
+``joint_states`` header's frame id is the map frame. Parameters: ``CadReplacerNodeConfig`` and
+``CadReplacementConfig`` under ``replace.`` (dotted names, see ``ros_nodes.parameters``).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from geometry_msgs.msg import Point, Pose, Quaternion, Transform, Vector3
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from scene_recon_interfaces.msg import ContactGraph as ContactGraphMsg
+from scene_recon_interfaces.msg import PanopticEntityArray
+from scene_recon_interfaces.srv import ApplySceneAction
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import Marker, MarkerArray
+
+from cad_replacement.actions import ActionError, SceneAction, apply_action
+from cad_replacement.cad.library import CadLibrary
+from cad_replacement.replace_config import CadReplacementConfig
+from cad_replacement.replacer import CadReplacer
+from cad_replacement.scene_model import ReplacedScene
+from cad_replacement.scene_tree import scene_to_tree
+from recon_core.config import Settings, setting
+from recon_core.entity import Entity
+from recon_core.errors import EntityError
+from recon_core.io import write_text_atomic
+from recon_core.kinematic_tree import KinematicTree
+from ros_nodes.contact_graph_node import graph_from_msg
+from ros_nodes.conversions import make_transform_stamped, matrix_to_transform, ns_to_stamp, transform_to_matrix
+from ros_nodes.entity_conversions import msg_to_entity
+from ros_nodes.parameters import declare_config
+from ros_nodes.qos import ENTITIES, LATCHED, TF_DYNAMIC, TF_STATIC
+from ros_nodes.runner import run_node
+
+ACTION_KIND = {ApplySceneAction.Request.SET_JOINT: "set_joint", ApplySceneAction.Request.MOVE_OBJECT: "move",
+               ApplySceneAction.Request.REPARENT: "reparent"}
+
+
+@dataclass
+class CadReplacerNodeConfig(Settings):
+    """ROS-side settings of the CAD replacer; the replacement itself is `CadReplacementConfig` (``replace.``)."""
+
+    graph_topic: str = setting("contact_graph", doc="ContactGraph input (latched)")
+    entities_topic: str = setting("panoptic_entities", doc="PanopticEntityArray input (node geometry)")
+    description_topic: str = setting("robot_description", doc="URDF output (std_msgs/String, latched)")
+    joint_states_topic: str = setting("joint_states", doc="JointState output")
+    markers_topic: str = setting("cad_markers", doc="MarkerArray output (latched)")
+    seeds_per_class: int = setting(10, min=1, doc="procedural CAD models per class in the library")
+    cad_dir: str = setting("", doc="folder of imported CAD assets (<class>/<model>/ with a URDF); empty: none")
+    output_dir: str = setting("scene_recon_data/scene", doc="where the scene's URDF and meshes are written")
+    tf_period_s: float = setting(0.1, min=0.01, doc="period of /tf and joint_states (s)")
+    min_period_s: float = setting(0.5, min=0.0, doc="replace at most this often (s)")
+
+
+class CadReplacerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("cad_replacer")
+        self.settings = declare_config(self, CadReplacerNodeConfig)
+        replace_cfg = declare_config(self, CadReplacementConfig, prefix="replace.")
+        library = CadLibrary(root=self.settings.cad_dir or None, seeds_per_class=self.settings.seeds_per_class)
+        self.replacer = CadReplacer(library, replace_cfg)
+        self.output_dir = Path(self.settings.output_dir).resolve()
+        self.lock = threading.Lock()
+        self.scene: ReplacedScene | None = None
+        self.tree: KinematicTree | None = None
+        self.frames: dict[str, str] = {}
+        self.joint_names: list[str] = []
+        self.records: list[dict] = []
+        self.entities: dict[int, Entity] = {}
+        self.graph_msg: ContactGraphMsg | None = None
+        self._dirty = False
+        self._last = -float("inf")
+        self.counters = {"graphs": 0, "replacements": 0, "rematched": 0, "actions": 0, "refused": 0,
+                         "bad_entities": 0}
+        work = MutuallyExclusiveCallbackGroup()
+        io = MutuallyExclusiveCallbackGroup()
+        s = self.settings
+        self.pub_description = self.create_publisher(String, s.description_topic, LATCHED)
+        self.pub_markers = self.create_publisher(MarkerArray, s.markers_topic, LATCHED)
+        self.pub_joints = self.create_publisher(JointState, s.joint_states_topic, 10)
+        self.pub_tf = self.create_publisher(TFMessage, "/tf", TF_DYNAMIC)
+        self.pub_tf_static = self.create_publisher(TFMessage, "/tf_static", TF_STATIC)
+        self.create_subscription(PanopticEntityArray, s.entities_topic, self._on_entities, ENTITIES,
+                                 callback_group=io)
+        self.create_subscription(ContactGraphMsg, s.graph_topic, self._on_graph, LATCHED, callback_group=io)
+        self.create_service(ApplySceneAction, "apply_scene_action", self._srv_action, callback_group=io)
+        self.create_service(Trigger, "export_scene", self._srv_export, callback_group=io)
+        self.create_timer(0.05, self._maybe_replace, callback_group=work)
+        self.create_timer(s.tf_period_s, self._publish_dynamic, callback_group=io)
+
+    # ------------------------------------------------------------------ inputs
+    def _on_entities(self, msg: PanopticEntityArray) -> None:
+        fresh: dict[int, Entity] = {}
+        for e in msg.entities:
+            old = self.entities.get(int(e.id))
+            if old is not None and old.revision == int(e.revision):
+                continue
+            try:
+                fresh[int(e.id)] = msg_to_entity(e)
+            except EntityError as exc:
+                self.counters["bad_entities"] += 1
+                self.get_logger().warning(f"entity {e.id} skipped: {exc}", throttle_duration_sec=5.0)
+        with self.lock:
+            for i in msg.removed_ids:
+                self.entities.pop(int(i), None)
+            self.entities.update(fresh)
+            self._dirty = self._dirty or bool(fresh) or bool(msg.removed_ids)
+
+    def _on_graph(self, msg: ContactGraphMsg) -> None:
+        with self.lock:
+            self.graph_msg = msg
+            self._dirty = True
+        self.counters["graphs"] += 1
+
+    # ------------------------------------------------------------------ replacement
+    def _maybe_replace(self) -> None:
+        with self.lock:
+            if not self._dirty or self.graph_msg is None or time.monotonic() - self._last < self.settings.min_period_s:
+                return
+            self._dirty = False
+            self._last = time.monotonic()
+            graph = graph_from_msg(self.graph_msg)
+            entities = dict(self.entities)
+            revision = self.scene.revision + 1 if self.scene is not None else 1
+        t0 = time.perf_counter()
+        result = self.replacer.replace(graph, entities)
+        result.scene.revision = revision
+        self.counters["replacements"] += 1
+        self.counters["rematched"] += result.rematched
+        with self.lock:
+            self.records = [r.to_dict() for r in result.records]
+            self._install(result.scene)
+        self.get_logger().info(f"scene revision {revision}: {len(result.scene)} objects, {result.rematched} "
+                               f"re-matched in {time.perf_counter() - t0:.2f} s; {self.counters}")
+
+    def _install(self, scene: ReplacedScene) -> None:
+        """Make ``scene`` current and publish its description, static TF, markers and dynamic state."""
+        tree = scene_to_tree(scene)
+        link_names, joint_names = tree.safe_names()
+        mesh_dir = self.output_dir / "meshes"
+        text = tree.urdf_text(mesh_dir, f"file://{mesh_dir}/")
+        text = text.replace("</robot>", f"  <!-- revision {scene.revision} -->\n</robot>")
+        self.scene, self.tree, self.frames = scene, tree, link_names
+        self.joint_names = [n for j, n in zip(tree.joints, joint_names, strict=True) if j.movable]
+        self.pub_description.publish(String(data=text))
+        stamp = self.get_clock().now().nanoseconds
+        static = [make_transform_stamped(j.origin, link_names[j.parent], link_names[j.child], stamp)
+                  for j in tree.joints if j.type == "fixed"]
+        self.pub_tf_static.publish(TFMessage(transforms=static))
+        self.pub_markers.publish(self._markers(tree, link_names, mesh_dir, stamp))
+        self._publish_dynamic()
+
+    def _markers(self, tree: KinematicTree, link_names: dict[str, str], mesh_dir: Path, stamp: int) -> MarkerArray:
+        out = MarkerArray(markers=[Marker(action=Marker.DELETEALL)])
+        poses = tree.link_poses()
+        for k, link in enumerate(tree.links):
+            if link.mesh is None or not len(link.mesh.faces):
+                continue
+            m = Marker(type=Marker.MESH_RESOURCE, action=Marker.ADD, ns="cad", id=k)
+            m.header.frame_id = tree.root
+            m.header.stamp = ns_to_stamp(stamp)
+            m.mesh_resource = f"file://{mesh_dir}/{link_names[link.name]}.stl"
+            m.pose = _pose_msg(poses[link.name])
+            m.scale.x = m.scale.y = m.scale.z = 1.0
+            r, g, b, a = link.rgba or (0.7, 0.7, 0.7, 1.0)
+            m.color.r, m.color.g, m.color.b, m.color.a = float(r), float(g), float(b), float(a)
+            out.markers.append(m)
+        return out
+
+    def _publish_dynamic(self) -> None:
+        with self.lock:
+            tree, frames, names = self.tree, self.frames, self.joint_names
+        if tree is None:
+            return
+        stamp = self.get_clock().now().nanoseconds
+        moving = [make_transform_stamped(j.transform(tree.joint_values.get(j.name, j.zero_value)),
+                                         frames[j.parent], frames[j.child], stamp)
+                  for j in tree.joints if j.type != "fixed"]
+        if moving:
+            self.pub_tf.publish(TFMessage(transforms=moving))
+        movable = [j for j in tree.joints if j.movable]
+        state = JointState(name=names, position=[float(tree.joint_values.get(j.name, j.zero_value)) for j in movable])
+        state.header.stamp = ns_to_stamp(stamp)
+        state.header.frame_id = tree.root
+        self.pub_joints.publish(state)
+
+    # ------------------------------------------------------------------ services
+    def _srv_action(self, req: ApplySceneAction.Request, res: ApplySceneAction.Response) -> ApplySceneAction.Response:
+        with self.lock:
+            scene = self.scene
+        res.revision = scene.revision if scene is not None else 0
+        if scene is None:
+            res.success, res.message = False, "no scene yet: waiting for a contact graph"
+            return res
+        kind = ACTION_KIND.get(req.action)
+        if kind is None:
+            res.success, res.message = False, f"unknown action {req.action}; use SET_JOINT, MOVE_OBJECT or REPARENT"
+            return res
+        if req.frame_id and req.frame_id != scene.frame_id:
+            res.success, res.message = False, f"poses must be given in {scene.frame_id!r}, not {req.frame_id!r}"
+            return res
+        pose = _matrix(req.pose) if kind == "move" else None
+        action = SceneAction(kind, object_name=req.object_name, joint=req.joint_name, value=req.joint_value,
+                             pose=pose, new_parent=req.new_parent)
+        try:
+            updated = apply_action(scene, action)
+        except ActionError as exc:
+            self.counters["refused"] += 1
+            res.success, res.message = False, str(exc)
+            return res
+        with self.lock:
+            self._install(updated)
+        self.counters["actions"] += 1
+        res.success, res.message, res.revision = True, f"{kind} applied", updated.revision
+        return res
+
+    def _srv_export(self, _req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
+        with self.lock:
+            tree, records, scene = self.tree, list(self.records), self.scene
+        if tree is None or scene is None:
+            res.success, res.message = False, "no scene yet: waiting for a contact graph"
+            return res
+        urdf = tree.to_urdf(self.output_dir, filename="scene.urdf")
+        write_text_atomic(self.output_dir / "joint_states.json", json.dumps(tree.joint_values, indent=1))
+        write_text_atomic(self.output_dir / "replacement.json",
+                          json.dumps({"revision": scene.revision, "objects_detail": records}, indent=1))
+        res.success, res.message = True, str(urdf)
+        return res
+
+
+def _pose_msg(matrix: np.ndarray) -> Pose:
+    t = matrix_to_transform(matrix)
+    return Pose(position=Point(x=t.translation.x, y=t.translation.y, z=t.translation.z),
+                orientation=Quaternion(x=t.rotation.x, y=t.rotation.y, z=t.rotation.z, w=t.rotation.w))
+
+
+def _matrix(pose: Pose) -> np.ndarray:
+    return transform_to_matrix(Transform(translation=Vector3(x=pose.position.x, y=pose.position.y,
+                                                             z=pose.position.z), rotation=pose.orientation))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(CadReplacerNode, args, threads=3)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
