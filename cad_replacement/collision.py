@@ -25,6 +25,7 @@ collision geometry always equals the scaled solid.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import io
 import json
@@ -32,6 +33,7 @@ import logging
 import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import trimesh
@@ -97,11 +99,14 @@ def _grid_union(boxes: NDArray[np.float64], mids: Sequence[NDArray[np.float64]])
     return out
 
 
-def _greedy_boxes(occupied: NDArray[np.bool_]) -> list[tuple[tuple[int, int], ...]]:
+IndexBox = tuple[tuple[int, int], tuple[int, int], tuple[int, int]]
+
+
+def _greedy_boxes(occupied: NDArray[np.bool_]) -> list[IndexBox]:
     """Cover the occupied cells with disjoint index boxes ``[(i0, i1), (j0, j1), (k0, k1)]`` (exclusive ends)."""
     free = occupied.copy()
     nx, ny, nz = free.shape
-    out = []
+    out: list[IndexBox] = []
     flat = free.reshape(-1)
     while True:
         first = int(np.argmax(flat))
@@ -270,7 +275,8 @@ def transform_inertial(inertial: Inertial, affine: ArrayLike) -> Inertial:
                     inertia=0.5 * (inertia + inertia.T))
 
 
-def transform_shapes(shapes: Iterable[CollisionShape], affine: ArrayLike, tol: float = 1e-9) -> tuple[CollisionShape, ...]:
+def transform_shapes(shapes: Iterable[CollisionShape], affine: ArrayLike,
+                     tol: float = 1e-9) -> tuple[CollisionShape, ...]:
     """Shapes mapped by ``affine`` (rigid or scaling): primitives stay primitives where they can.
 
     A box whose axes the linear part keeps orthogonal stays a box (sizes stretched); a cylinder
@@ -321,12 +327,10 @@ def mesh_digest(mesh: trimesh.Trimesh, method: str) -> str:
     return h.hexdigest()
 
 
-def _coacd_module():  # type: ignore[no-untyped-def]
+def _coacd_module() -> Any:
     """CoACD, imported after open3d (REFERENCE.md sec. 4: the other order crashes); None when missing."""
-    try:
+    with contextlib.suppress(ImportError):
         import open3d  # noqa: F401
-    except ImportError:
-        pass
     try:
         import coacd
     except ImportError:

@@ -133,7 +133,7 @@ def check_pybullet(folder: str | Path, seconds: float = 2.0, timestep: float = 1
                     pb.resetJointState(body, k, values.get(info[1].decode(), 0.0), physicsClientId=client)
             bodies[name] = (body, _pb_link_pose(pb, client, body), _collision_corners(path))
         report.loaded = not report.errors
-        for _ in range(int(round(seconds / timestep))):
+        for _ in range(round(seconds / timestep)):
             pb.stepSimulation(physicsClientId=client)
         for name, (body, before, corners) in bodies.items():
             report.displacement[name] = _displacement(corners, before, _pb_link_pose(pb, client, body))
@@ -190,7 +190,7 @@ def check_mujoco(folder: str | Path, seconds: float = 2.0) -> PhysicsReport:
             report.errors.append(f"scene.xml has no body {obj['link']!r}")
             continue
         bodies[name] = (bid, _mj_pose(data, bid), _collision_corners(folder / obj["urdf"]))
-    steps = int(round(seconds / model.opt.timestep))
+    steps = round(seconds / model.opt.timestep)
     mujoco.mj_step(model, data, nstep=steps)
     for name, (bid, before, corners) in bodies.items():
         report.displacement[name] = _displacement(corners, before, _mj_pose(data, bid))
