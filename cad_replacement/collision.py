@@ -335,6 +335,7 @@ def _coacd_module() -> Any:
         import coacd
     except ImportError:
         return None
+    coacd.set_log_level("error")  # its progress log goes to stdout otherwise
     return coacd
 
 
