@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 import yourdfpy
+from testsupport.scenes import drawer_scene
 
 from cad_replacement.cad import build_model
 from cad_replacement.export import SEP, export_scene, scene_to_tree, subtree
@@ -16,45 +17,9 @@ from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
 from recon_core.errors import InputError
 
 
-def _pose(x: float, y: float, z: float, yaw: float = 0.0) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    t = np.eye(4)
-    t[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
-    t[:3, 3] = (x, y, z)
-    return t
-
-
-def _drawer_cabinet():
-    for seed in range(200):
-        model = build_model("cabinet", seed, overrides={"layout": "drawers"})
-        surfaces = [s for s in model.features.support_surfaces if s.link != model.root_link and s.clearance
-                    and s.clearance > 0.12]
-        if surfaces:
-            return model, surfaces[0]
-    raise AssertionError("no cabinet with a deep enough drawer")
-
-
 @pytest.fixture(scope="module")
 def scene() -> ReplacedScene:
-    """A cabinet with an open drawer holding a cup, a table with a bottle, a box on the floor."""
-    cabinet, surface = _drawer_cabinet()
-    slide = next(j for j in cabinet.movable_joints if j.child == surface.link)
-    values = {slide.name: 0.5 * slide.upper}
-    cab_pose = _pose(1.0, 0.5, 0.0, np.pi / 2)
-    motion = cabinet.surface_motion(surface.link, values)
-    centre = np.r_[surface.polygon.mean(axis=0), surface.height, 1.0]
-    cup_at = cab_pose @ motion @ centre
-    table = build_model("table", 1)
-    floor = build_model("box", 0)
-    return ReplacedScene("test room", [
-        PlacedObject("cabinet_1", "cabinet", cabinet, cab_pose, joint_values=values),
-        PlacedObject("cup_1", "cup", build_model("cup", 2), _pose(*cup_at[:3], 0.3), parent="cabinet_1",
-                     parent_link=surface.link, support="floating", movable=True),
-        PlacedObject("table_1", "table", table, _pose(-1.0, 0.0, 0.0, 0.2)),
-        PlacedObject("bottle_1", "bottle", build_model("bottle", 0), _pose(-1.0, 0.1, float(table.size[2])),
-                     parent="table_1", support="floating", movable=True),
-        PlacedObject("box_1", "box", floor, _pose(0.0, -1.0, 0.0), support="floating", movable=True),
-    ])
+    return drawer_scene()
 
 
 @pytest.fixture(scope="module")
@@ -123,8 +88,8 @@ def test_mjcf_loads_with_one_free_joint_per_movable_object(scene, exported):
             np.testing.assert_allclose(data.xpos[bid], pose[:3, 3], atol=1e-9, err_msg=name)
             np.testing.assert_allclose(data.xmat[bid].reshape(3, 3), pose[:3, :3], atol=1e-9, err_msg=name)
     # the open drawer's slide starts at its current value
-    slide = model.joint(f"cabinet_1{SEP}{next(iter(scene.object('cabinet_1').joint_values))}")
-    assert float(data.qpos[slide.qposadr[0]]) == pytest.approx(next(iter(scene.object("cabinet_1").joint_values.values())))
+    (name, value), = scene.object("cabinet_1").joint_values.items()
+    assert float(data.qpos[model.joint(f"cabinet_1{SEP}{name}").qposadr[0]]) == pytest.approx(value)
 
 
 def test_everything_written_is_finite_and_the_glb_loads(exported):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from testsupport.scenes import drawer_scene
 
 from cad_replacement.export import export_scene
 from scene_recon.evaluation.physics import STILL_THRESHOLD, check_mujoco, check_pybullet
@@ -38,3 +39,12 @@ def test_a_broken_folder_reports_load_errors(tmp_path, generated):
     result.mjcf.write_text("<mujoco><worldbody><geom type='mesh' mesh='missing'/></worldbody></mujoco>")
     report = check_mujoco(result.folder)
     assert not report.loaded and report.errors and report.still_fraction == 0.0
+
+
+@pytest.mark.parametrize("check", [check_pybullet, check_mujoco], ids=["pybullet", "mujoco"])
+def test_a_cup_in_an_open_drawer_stays_in_it(tmp_path, check):
+    result = export_scene(drawer_scene(0.6), tmp_path / "drawer", glb=False)
+    report = check(result.folder, seconds=2.0)
+    assert report.loaded and not report.errors
+    assert report.displacement["cup_1"] < 0.005 and report.displacement["bottle_1"] < 0.005, report.displacement
+    assert report.displacement["box_1"] > 0.5  # this scene has no floor: the box falls, and the check sees it
