@@ -68,13 +68,16 @@ DEFAULT_RGBA = (0.7, 0.7, 0.7, 1.0)
 
 @dataclass(frozen=True)
 class MjcfOptions:
-    """Simulation settings written into ``scene.xml`` (why each value: see the field comments).
+    """Simulation settings written into ``scene.xml``.
 
-    ``timestep`` 2 ms with the implicit-fast integrator and an elliptic friction cone keeps
-    resting contacts from creeping; ``impratio`` > 1 makes friction stiffer than the normal force
-    so a cup on a tilted-by-solver-noise surface does not slide. Hinges and slides carry damping
-    and dry friction (``frictionloss``), as real furniture hinges and runners do, so a door does
-    not swing from the push of a solver impulse; ``armature`` stabilises light links.
+    What keeps resting objects still is the collision geometry (exact primitives instead of
+    convex hulls of hollow links); measured on generated scenes (seeds 0-5, 20 objects) and a cup
+    in an open drawer, MuJoCo's own defaults (Euler, pyramidal cone, no joint damping) leave
+    every movable object within 0.5 mm in 2 s as these settings do. The settings are for what
+    happens when something pushes: the implicit-fast integrator and the elliptic cone with
+    ``impratio`` > 1 give stiffer, non-creeping friction; hinges and runners carry damping and dry
+    friction (``frictionloss``) like real furniture, so a bumped door does not swing on freely;
+    ``armature`` stabilises light door and drawer links. 2 ms is MuJoCo's default step.
     """
 
     timestep: float = 0.002

@@ -112,7 +112,8 @@ def check_pybullet(folder: str | Path, seconds: float = 2.0, timestep: float = 1
             name = info[1].decode()
             if info[2] in (pb.JOINT_REVOLUTE, pb.JOINT_PRISMATIC):
                 pb.resetJointState(static, k, values.get(name, 0.0), physicsClientId=client)
-                # hold the joint like a furniture hinge with friction: a velocity motor towards 0
+                # hinge/runner friction as in the MJCF: a velocity motor towards 0 with a bounded force
+                # (PyBullet's default motor); stillness does not depend on it, pushes do
                 pb.setJointMotorControl2(static, k, pb.VELOCITY_CONTROL, targetVelocity=0.0, force=20.0,
                                          physicsClientId=client)
         bodies: dict[str, tuple[int, NDArray[np.float64], NDArray[np.float64]]] = {}
