@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -69,8 +70,10 @@ def _corners(lo: NDArray[np.float64], hi: NDArray[np.float64]) -> NDArray[np.flo
 
 def _collision_corners(urdf_path: Path) -> NDArray[np.float64]:
     """Corners of the bounding box of an object's collision geometry in its root link frame."""
-    robot = yourdfpy.URDF.load(str(urdf_path), build_scene_graph=True, load_meshes=True,
-                               load_collision_meshes=True, build_collision_scene_graph=True)
+    with warnings.catch_warnings():  # yourdfpy 0.0.60 calls trimesh's deprecated Scene.dump internally
+        warnings.simplefilter("ignore", DeprecationWarning)
+        robot = yourdfpy.URDF.load(str(urdf_path), build_scene_graph=True, load_meshes=True,
+                                   load_collision_meshes=True, build_collision_scene_graph=True)
     scene = robot.collision_scene
     if scene is None or scene.is_empty:
         scene = robot.scene
