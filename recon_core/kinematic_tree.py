@@ -25,7 +25,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from recon_core.geometry.transforms import EPS_NORM, is_rigid, rotation_about, translation, unit
-from recon_core.io import write_text_atomic
+from recon_core.io import write_bytes_atomic, write_text_atomic
 from recon_core.names import unique_names, urdf_name
 
 JOINT_TYPES = ("fixed", "floating", "revolute", "prismatic", "continuous")
@@ -273,17 +273,21 @@ class KinematicTree:
         joints = unique_names(urdf_name(j.name) for j in self.joints)
         return links, joints
 
-    def urdf_text(self, mesh_dir: str | Path, mesh_uri_prefix: str = "", mesh_format: MeshFormat = "stl") -> str:
+    def urdf_text(self, mesh_dir: str | Path, mesh_uri_prefix: str = "", mesh_format: MeshFormat = "stl",
+                  write_meshes: bool = True) -> str:
         """Write the link meshes into ``mesh_dir`` and return the URDF document.
 
         Mesh references are ``mesh_uri_prefix + <file name>`` (relative paths keep a scene folder
-        movable).
+        movable); file names are ``<link>.<fmt>`` (visual) and ``<link>_collision_<k>.<fmt>``
+        (convex pieces). ``write_meshes=False`` only references them: several documents over one
+        mesh folder (a scene and its per-object parts) write each file once.
         """
         if mesh_format not in ("stl", "obj"):
             raise ValueError(f"mesh_format must be 'stl' or 'obj', got {mesh_format!r}")
         self.validate()
-        out = Path(mesh_dir)
-        out.mkdir(parents=True, exist_ok=True)
+        out = Path(mesh_dir) if write_meshes else None
+        if out is not None:
+            out.mkdir(parents=True, exist_ok=True)
         link_names, joint_names = self.safe_names()
         lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(urdf_name(self.name))}>"]
         for link in self.links:
@@ -295,19 +299,26 @@ class KinematicTree:
         return "\n".join(lines) + "\n"
 
     def to_urdf(self, folder: str | Path, mesh_dir: str = "meshes", filename: str | None = None,
-                mesh_format: MeshFormat = "stl") -> Path:
+                mesh_format: MeshFormat = "stl", write_meshes: bool = True) -> Path:
         """Write ``<folder>/<name>.urdf`` (atomically) and the link meshes under ``<folder>/<mesh_dir>/``."""
         folder = Path(folder)
-        text = self.urdf_text(folder / mesh_dir, f"{mesh_dir}/" if mesh_dir else "", mesh_format)
+        text = self.urdf_text(folder / mesh_dir, f"{mesh_dir}/" if mesh_dir else "", mesh_format, write_meshes)
         return write_text_atomic(folder / (filename or f"{urdf_name(self.name)}.urdf"), text)
 
 
-def _link_lines(link: TreeLink, name: str, out: Path, uri_prefix: str, mesh_format: str) -> list[str]:
+def export_mesh_file(mesh: trimesh.Trimesh, path: Path, mesh_format: str) -> Path:
+    """Write one mesh file atomically (a reader never sees half a mesh)."""
+    data = mesh.export(file_type=mesh_format)
+    return write_bytes_atomic(path, data.encode("utf-8") if isinstance(data, str) else bytes(data))
+
+
+def _link_lines(link: TreeLink, name: str, out: Path | None, uri_prefix: str, mesh_format: str) -> list[str]:
     lines = [f"  <link name={quoteattr(name)}>"]
     mesh = link.mesh
     if mesh is not None and len(mesh.faces):
         fname = f"{name}.{mesh_format}"
-        mesh.export(out / fname, file_type=mesh_format)
+        if out is not None:
+            export_mesh_file(mesh, out / fname, mesh_format)
         geometry = f"<geometry><mesh filename={quoteattr(uri_prefix + fname)}/></geometry>"
         material = ""
         if link.rgba is not None:
@@ -324,7 +335,8 @@ def _link_lines(link: TreeLink, name: str, out: Path, uri_prefix: str, mesh_form
     return lines
 
 
-def _collision_line(shape: CollisionShape, file_stem: str, out: Path, uri_prefix: str, mesh_format: str) -> str:
+def _collision_line(shape: CollisionShape, file_stem: str, out: Path | None, uri_prefix: str,
+                    mesh_format: str) -> str:
     n = format_number
     if shape.kind == "box":
         geometry = f"<box size={quoteattr(format_vector(shape.size))}/>"
@@ -335,7 +347,8 @@ def _collision_line(shape: CollisionShape, file_stem: str, out: Path, uri_prefix
     else:
         assert shape.mesh is not None  # checked by CollisionShape
         fname = f"{file_stem}.{mesh_format}"
-        shape.mesh.export(out / fname, file_type=mesh_format)
+        if out is not None:
+            export_mesh_file(shape.mesh, out / fname, mesh_format)
         geometry = f"<mesh filename={quoteattr(uri_prefix + fname)}/>"
     return f"    <collision>{origin_element(shape.origin)}<geometry>{geometry}</geometry></collision>"
 
@@ -389,6 +402,7 @@ __all__ = [
     "KinematicTree",
     "TreeLink",
     "box_inertia",
+    "export_mesh_file",
     "format_number",
     "format_vector",
     "origin_element",

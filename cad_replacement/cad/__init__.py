@@ -13,7 +13,8 @@ Types (``model``, ``feature_types``):
         .posed_link_meshes(joint_values=None) -> {link: Trimesh}  in the model frame
         .mesh(joint_values=None) -> Trimesh                whole object, links concatenated
         .size, .zero_configuration(), .movable_joints, .scaled(factors), .reframed(T)
-    Link(name, mesh, color)             mesh in the link frame; procedural ones are watertight
+    Link(name, mesh, color, collisions, inertial)   mesh in the link frame (procedural ones are
+        watertight) and its collision shapes (``cad_replacement.collision``: exact primitives)
     Joint(name, type, parent, child, origin, axis, lower, upper)   URDF semantics
     SupportSurface(height, polygon, clearance, link, enclosed)
     Plane(normal, d, area)  with n.x + d = 0 and an outward unit normal; .support

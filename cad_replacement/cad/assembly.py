@@ -7,8 +7,11 @@ by an anchor point and an axis. ``Assembly.build`` then
 1. recentres everything so the bounding box's bottom centre is the origin,
 2. gives each non-root link a frame at its joint anchor (identity rotation at the closed pose),
 3. unions each link's parts exactly with manifold3d (watertight, correct volume), subtracting the
-   ``cut`` parts (cup cavities), and
-4. derives the matching features analytically from the parts (see ``_analytic_planes``).
+   ``cut`` parts (cup cavities),
+4. records each link's collision shapes from its parts (``part_collisions``: the boxes decomposed
+   exactly by box CSG, cylinders kept as cylinders, a coaxial cylinder cut as a ring of convex
+   prisms), so a hollow carcass never collides as its convex hull, and
+5. derives the matching features analytically from the parts (see ``_analytic_planes``).
 """
 
 from __future__ import annotations
@@ -23,8 +26,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from cad_replacement.cad.feature_types import ModelFeatures, Plane, SupportSurface, merge_planes
 from cad_replacement.cad.model import CadModel, Joint, Link, ParamValue
+from cad_replacement.collision import box_csg, box_shape, cylinder_shape, mesh_collisions, ring_pieces
 from recon_core.geometry.transforms import translation
-from recon_core.kinematic_tree import JointType
+from recon_core.kinematic_tree import CollisionShape, JointType
 
 #: Segments of every procedural cylinder; a multiple of 4 puts vertices on the +-x/+-y extremes,
 #: so mesh bounding boxes equal the analytic ones.
@@ -229,10 +233,13 @@ class Assembly:
         if missing:
             raise ValueError(f"{self.class_name}: links without a joint: {sorted(missing)}")
 
-        links = [
-            Link(name=lb.name, mesh=_link_mesh(lb, shift - origins[lb.name], self.class_name), color=lb.color)
-            for lb in self._links.values()
-        ]
+        links = []
+        for lb in self._links.values():
+            offset = shift - origins[lb.name]
+            mesh = _link_mesh(lb, offset, self.class_name)
+            shapes = part_collisions([p.shifted(offset) for p in lb.parts])
+            links.append(Link(name=lb.name, mesh=mesh, color=lb.color,
+                              collisions=shapes if shapes is not None else mesh_collisions(mesh)))
         joints = [
             Joint(
                 name=js.name,
@@ -292,6 +299,61 @@ def _link_mesh(lb: LinkBuilder, offset: NDArray[np.float64], class_name: str) ->
     if not (mesh.is_watertight and mesh.volume > 0.0):
         raise RuntimeError(f"{class_name}: link {lb.name!r} mesh is not a closed positive-volume solid")
     return mesh
+
+
+def _overlap(a: Primitive, b: Primitive) -> bool:
+    """Whether the parts' bounding boxes share interior (touching faces do not count)."""
+    alo, ahi = a.bounds()
+    blo, bhi = b.bounds()
+    return bool(np.all(np.minimum(ahi, bhi) - np.maximum(alo, blo) > FACE_TOL))
+
+
+def _coaxial(a: Cylinder, b: Cylinder) -> bool:
+    off = np.delete(a.center - b.center, a.axis)
+    return a.axis == b.axis and bool(np.all(np.abs(off) <= FACE_TOL))
+
+
+def part_collisions(parts: Sequence[Primitive]) -> tuple[CollisionShape, ...] | None:
+    """Exact collision shapes of one link's parts (link frame), or ``None`` when not expressible.
+
+    Boxes (additive minus cut) go through the exact box CSG; an additive cylinder untouched by
+    cuts stays a cylinder; one with a single coaxial, narrower cylinder cut (a cup) becomes the
+    solid segments outside the cut plus a ring of convex prisms where the cut runs. Cut cylinders
+    through boxes, or cut boxes through cylinders, have no exact primitive form: ``None`` (the
+    caller then decomposes the mesh into convex pieces).
+    """
+    box_adds = [p for p in parts if isinstance(p, Box) and not p.cut]
+    box_cuts = [p for p in parts if isinstance(p, Box) and p.cut]
+    cyl_adds = [p for p in parts if isinstance(p, Cylinder) and not p.cut]
+    cyl_cuts = [p for p in parts if isinstance(p, Cylinder) and p.cut]
+    if any(_overlap(k, b) for k in cyl_cuts for b in box_adds):
+        return None
+    shapes: list[CollisionShape] = []
+    if box_adds:
+        boxes = box_csg([[p.lo, p.hi] for p in box_adds], [[p.lo, p.hi] for p in box_cuts] or None)
+        shapes.extend(box_shape(lo, hi) for lo, hi in boxes)
+    for cyl in cyl_adds:
+        if any(_overlap(cyl, k) for k in box_cuts):
+            return None
+        cuts = [k for k in cyl_cuts if _overlap(cyl, k)]
+        if not cuts:
+            shapes.append(cylinder_shape(cyl.center, cyl.radius, cyl.length, cyl.axis))
+            continue
+        cut = cuts[0]
+        if len(cuts) > 1 or not _coaxial(cyl, cut) or cut.radius >= cyl.radius:
+            return None
+        ax = cyl.axis
+        c0, c1 = cyl.center[ax] - 0.5 * cyl.length, cyl.center[ax] + 0.5 * cyl.length
+        k0, k1 = max(c0, cut.center[ax] - 0.5 * cut.length), min(c1, cut.center[ax] + 0.5 * cut.length)
+        for lo, hi in ((c0, k0), (k1, c1)):
+            if hi - lo > FACE_TOL:  # solid end segment (a cup's bottom)
+                centre = cyl.center.copy()
+                centre[ax] = 0.5 * (lo + hi)
+                shapes.append(cylinder_shape(centre, cyl.radius, hi - lo, ax))
+        centre = cyl.center.copy()
+        centre[ax] = 0.5 * (k0 + k1)
+        shapes.extend(ring_pieces(centre, cut.radius, cyl.radius, k1 - k0, ax, CYLINDER_SEGMENTS))
+    return tuple(shapes)
 
 
 def _cross_section(p: Primitive, axis: int) -> float:

@@ -24,6 +24,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from cad_replacement.cad.feature_types import ModelFeatures
+from cad_replacement.collision import transform_inertial, transform_shapes
 from recon_core.geometry.transforms import as_mesh, invert_rigid, is_rigid
 from recon_core.kinematic_tree import CollisionShape, Inertial, Joint
 
@@ -229,9 +230,10 @@ class CadModel:
             new[j.child] = new[j.parent] @ nj.transform(nj.zero_value)
         links = []
         for lk in self.links:
+            affine = invert_rigid(new[lk.name]) @ scale @ old[lk.name]
             m = lk.mesh.copy()
-            m.apply_transform(invert_rigid(new[lk.name]) @ scale @ old[lk.name])
-            links.append(Link(name=lk.name, mesh=m, color=lk.color))
+            m.apply_transform(affine)
+            links.append(_mapped_link(lk, m, affine))
         order_index = {j.name: i for i, j in enumerate(self.joints)}
         joints.sort(key=lambda jt: order_index[jt.name])
         return CadModel(
@@ -256,13 +258,26 @@ class CadModel:
             raise ValueError("reframed() needs a rigid 4x4 transform")
         links = []
         for lk in self.links:
-            m = lk.mesh.copy()
             if lk.name == self.root_link:
+                m = lk.mesh.copy()
                 m.apply_transform(g)
-            links.append(Link(name=lk.name, mesh=m, color=lk.color))
+                links.append(_mapped_link(lk, m, g))
+            else:
+                links.append(lk)
         joints = [dataclasses.replace(j, origin=g @ j.origin) if j.parent == self.root_link else j for j in self.joints]
         draft = dataclasses.replace(self, links=tuple(links), joints=tuple(joints))
         return draft.with_features(bounding_box_features(draft.mesh()))
+
+
+def _mapped_link(link: Link, mesh: trimesh.Trimesh, affine: NDArray[np.float64]) -> Link:
+    """``link`` with its geometry mapped by ``affine``: the new mesh, collisions and inertial follow.
+
+    Boxes scaled along their axes stay boxes, otherwise shapes become convex mesh pieces
+    (``transform_shapes``); the inertial keeps its density (``transform_inertial``).
+    """
+    collisions = None if link.collisions is None else transform_shapes(link.collisions, affine)
+    inertial = None if link.inertial is None else transform_inertial(link.inertial, affine)
+    return Link(name=link.name, mesh=mesh, color=link.color, collisions=collisions, inertial=inertial)
 
 
 def bounding_box_features(mesh: trimesh.Trimesh) -> ModelFeatures:

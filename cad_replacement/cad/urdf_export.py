@@ -5,9 +5,11 @@ and the core writer prints it, so a single object and a whole scene share names,
 and inertials. The output loads with ``yourdfpy.URDF.load`` and its forward kinematics equal the
 model's (``CadModel.link_poses``).
 
-Inertial: mass = volume x density (the class table's density unless given), where the volume is the
-link mesh's own volume when it is a closed solid and its convex hull's otherwise; the inertia is
-that of the link's bounding box (paper-level fidelity; enough for a physics sanity check).
+Collisions and inertial: a link's own collision shapes (procedural links: exact primitives, see
+``cad_replacement.collision``) with mass = their volume x density (the class table's density
+unless given) and their full inertia tensor. A link without shapes (imported meshes) collides as
+its visual mesh and weighs its mesh volume (closed) or hull volume x density with the inertia of
+its bounding box; ``cad_replacement.export`` decomposes such meshes into convex pieces.
 """
 
 from __future__ import annotations
@@ -18,10 +20,11 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from cad_replacement.cad.model import CadModel
+from cad_replacement.cad.model import CadModel, Link
+from cad_replacement.collision import inertial_from_shapes
 from recon_core.classes import ClassTable, UnknownClassError, load_class_table
 from recon_core.io import write_text_atomic
-from recon_core.kinematic_tree import KinematicTree, MeshFormat, TreeLink
+from recon_core.kinematic_tree import Inertial, KinematicTree, MeshFormat, TreeLink
 from recon_core.names import sanitize_name
 
 #: Density (kg/m^3) for classes missing from the class table.
@@ -81,12 +84,19 @@ def model_tree(model: CadModel, density: float, name_prefix: str = "", robot_nam
     """The model as a kinematic tree at its closed configuration (names prefixed for scene merging)."""
     links = [TreeLink(name_prefix + lk.name, lk.mesh, max(link_volume(lk.mesh) * density, MIN_MASS),
                       None if lk.color is None else tuple(float(c) for c in lk.color),  # type: ignore[arg-type]
-                      collisions=lk.collisions, inertial=lk.inertial)
+                      collisions=lk.collisions, inertial=_inertial(lk, density))
              for lk in model.links]
     joints = [dataclasses.replace(j, name=name_prefix + j.name, parent=name_prefix + j.parent,
                                   child=name_prefix + j.child) for j in model.joints]
     return KinematicTree(sanitize_name(robot_name or model.model_id, "model"), name_prefix + model.root_link,
                          links, joints)
+
+
+def _inertial(link: Link, density: float) -> Inertial | None:
+    """The link's own inertial, else the one of its collision shapes (None: the writer's mesh box)."""
+    if link.inertial is not None or not link.collisions:
+        return link.inertial
+    return inertial_from_shapes(link.collisions, density)
 
 
 def write_urdf(

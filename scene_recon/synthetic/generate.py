@@ -12,7 +12,8 @@ stripped from the folder name):
     out/kitchen_groundtruth/
         scene.json      entities (id, class, pose, joints, box, parent), support and proximal edges
         meshes/*.ply    every entity's mesh in the map frame
-        urdf/scene.urdf ground-truth kinematic tree (+ urdf/meshes/*.stl)
+        urdf/scene.urdf ground-truth kinematic tree through the stage-4 exporter (+ urdf/meshes/,
+                        scene.xml MJCF, scene.glb, static.urdf, objects/*.urdf, joint_states.json)
         overview.png    bird's-eye picture with the camera path
         generation.json the settings and timings of the run
 """

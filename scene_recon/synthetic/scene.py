@@ -4,7 +4,9 @@ The ground truth is what every later stage is measured against:
 * per entity: label id (the value in the label images), class, category, pose, joint values,
   gravity-aligned oriented box, mesh, support parent (and the parent's link);
 * the ground-truth contact graph: support parent of every node, proximal pairs (boxes overlap);
-* the ground-truth URDF of the scene (support edges as fixed/floating joints, CAD joints kept).
+* the ground-truth scene as stage 4's ``ReplacedScene`` (``ground_truth_scene``), exported by the
+  same exporter as a reconstruction (``cad_replacement.export``): ``urdf/scene.urdf`` (support
+  edges as fixed/floating joints, CAD joints kept), ``urdf/scene.xml`` (MJCF), per-object URDFs.
 Saved as a folder (`scene.json` + PLY meshes + `urdf/`), never pickled.
 """
 
@@ -18,11 +20,14 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from cad_replacement.cad.model import CadModel, Link, bounding_box_features
 from cad_replacement.cad.procedural import build_model
+from cad_replacement.collision import box_shape
+from cad_replacement.export import ExportResult, export_scene
+from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
 from recon_core.classes import load_class_table
 from recon_core.entity import Entity
 from recon_core.geometry.box import GravityBox
-from recon_core.kinematic_tree import Joint, KinematicTree, TreeLink
 from scene_recon.synthetic.items import Appearance, RenderItem
 from scene_recon.synthetic.layout import LayoutConfig, RoomLayout
 
@@ -91,42 +96,14 @@ class GroundTruthScene:
                                     name=e.name))
         return items
 
-    # ------------------------------------------------------------------ kinematic tree
-    def kinematic_tree(self) -> KinematicTree:
-        """The ground-truth scene as a kinematic tree (see module doc)."""
-        table = load_class_table()
-        links = [TreeLink(ROOT)]
-        joints = []
-        values: dict[str, float] = {}
-        link_pose: dict[str, np.ndarray] = {ROOT: np.eye(4)}
-        models = {}
-        for e in self.entities:  # parents come before children in `entities`
-            model = self.model_of(e)
-            models[e.name] = model
-            if model is None:
-                links.append(TreeLink(e.name, e.mesh, 0.0))
-                root_pose = np.eye(4)
-                link_pose[e.name] = root_pose
-            else:
-                density = table.by_name(e.class_name).density
-                poses = model.link_poses(e.joint_values)
-                for link in model.links:
-                    lname = e.name if link.name == model.root_link else f"{e.name}__{link.name}"
-                    links.append(TreeLink(lname, link.mesh, max(float(abs(link.mesh.volume)) * density, 1e-3)))
-                    link_pose[lname] = e.pose @ poses[link.name]
-                for j in model.joints:
-                    parent = e.name if j.parent == model.root_link else f"{e.name}__{j.parent}"
-                    child = e.name if j.child == model.root_link else f"{e.name}__{j.child}"
-                    joints.append(Joint(f"{e.name}__{j.name}", j.type, parent, child, j.origin, j.axis, j.lower,
-                                        j.upper))
-                    values[f"{e.name}__{j.name}"] = float(e.joint_values.get(j.name, 0.0))
-                root_pose = e.pose
-            parent_link = e.parent if not e.parent_link or models.get(e.parent) is None \
-                or e.parent_link == models[e.parent].root_link else f"{e.parent}__{e.parent_link}"
-            origin = np.linalg.inv(link_pose[parent_link]) @ root_pose
-            jtype = "floating" if e.movable else "fixed"
-            joints.append(Joint(f"{parent_link}__to__{e.name}", jtype, parent_link, e.name, origin))
-        return KinematicTree(self.name, ROOT, links, joints, values)
+    # ------------------------------------------------------------------ replaced scene
+    def replaced_scene(self) -> ReplacedScene:
+        """The ground truth as stage 4's result (see ``ground_truth_scene``)."""
+        return ground_truth_scene(self)
+
+    def export(self, folder: str | Path, *, glb: bool = True) -> ExportResult:
+        """Write the ground truth's URDF/MJCF/GLB folder through the stage-4 exporter."""
+        return export_scene(self.replaced_scene(), folder, glb=glb)
 
     # ------------------------------------------------------------------ persistence
     def save(self, folder: str | Path) -> Path:
@@ -142,7 +119,7 @@ class GroundTruthScene:
             "proximal_edges": [list(p) for p in self.proximal],
         }
         (folder / "scene.json").write_text(json.dumps(data, indent=1), encoding="utf-8")
-        self.kinematic_tree().to_urdf(folder / "urdf", filename="scene.urdf")
+        self.export(folder / "urdf")
         return folder / "scene.json"
 
     @classmethod
@@ -162,6 +139,44 @@ class GroundTruthScene:
                 d.get("visible_pixels", 0)))
         return cls(data["name"], data["seed"], tuple(data["room_size"]), entities,
                    [tuple(p) for p in data.get("proximal_edges", [])])
+
+
+def layout_model(e: SceneEntity) -> CadModel:
+    """A layout element (floor, wall, ceiling: a box slab) as a one-link CAD model with a box collision.
+
+    The slab keeps the entity's own frame (its pose, the identity for generated rooms), so the
+    exported link pose equals the ground-truth pose; the collision is the mesh's bounding box,
+    exact for the generator's axis-aligned slabs.
+    """
+    if e.mesh is None or len(e.mesh.faces) == 0:
+        raise ValueError(f"layout entity {e.name!r} has no mesh")
+    mesh = e.mesh.copy()
+    mesh.apply_transform(np.linalg.inv(e.pose))
+    lo, hi = mesh.bounds
+    link = Link(name="body", mesh=mesh, color=(0.8, 0.8, 0.78, 1.0), collisions=(box_shape(lo, hi),))
+    return CadModel(class_name=e.class_name, model_id=f"layout_{e.name}", links=(link,), joints=(),
+                    features=bounding_box_features(mesh), source=f"layout:{e.name}")
+
+
+def ground_truth_scene(gt: GroundTruthScene) -> ReplacedScene:
+    """Every entity of a generated scene as a ``PlacedObject`` (parents before children).
+
+    Objects get their procedural model (``model_seed``), pose, joint values, support parent and
+    link; layout elements a box model (``layout_model``). Movable entities rest on floating
+    joints, the rest on fixed ones; the generator's root ``"scene"`` is the map root.
+    """
+    objects = []
+    for e in gt.entities:
+        model = gt.model_of(e) if e.model_seed is not None else layout_model(e)
+        assert model is not None
+        parent = MAP_ROOT if e.parent in (ROOT, "", MAP_ROOT) else e.parent
+        objects.append(PlacedObject(
+            name=e.name, class_name=e.class_name, model=model, pose=e.pose, parent=parent,
+            parent_link=e.parent_link if parent != MAP_ROOT else "", support="floating" if e.movable else "fixed",
+            movable=e.movable, entity_id=e.id, joint_values=dict(e.joint_values), cad_id=model.model_id))
+    scene = ReplacedScene(gt.name, objects)
+    scene.validate()
+    return scene
 
 
 def _proximal_pairs(entities: list[SceneEntity], tolerance: float) -> list[tuple[str, str]]:

@@ -103,7 +103,7 @@ def test_export_round_trip_through_yourdfpy(tmp_path: Path, class_name: str, see
     for j in model.movable_joints:
         uj = urdf.joint_map[j.name]
         assert (uj.limit.lower, uj.limit.upper) == pytest.approx((j.lower, j.upper))
-    # Inertials: mass = volume x density (class table), box inertia around the link's box centre.
+    # Inertials: mass = collision volume x density (class table), the shapes' full inertia tensor.
     body = urdf.link_map[model.root_link]
     assert body.inertial.mass > 1.0
     assert np.all(np.diag(body.inertial.inertia) > 0.0)

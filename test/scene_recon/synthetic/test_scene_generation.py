@@ -126,7 +126,7 @@ def test_ground_truth_urdf_forward_kinematics_match_scene(tmp_path):
             cfg[f"{e.name}__{jname}"] = value
     robot.update_cfg({k: v for k, v in cfg.items() if k in robot.actuated_joint_names})
     for e in scene.entities:
-        t = robot.get_transform(e.name, "scene")
+        t = robot.get_transform(e.name, "map")
         np.testing.assert_allclose(t, e.pose, atol=1e-6, err_msg=e.name)
     # every link of every articulated object sits where the CAD model's kinematics put it
     checked = 0
@@ -137,7 +137,7 @@ def test_ground_truth_urdf_forward_kinematics_match_scene(tmp_path):
         poses = model.link_poses(e.joint_values)
         for link in model.links:
             name = e.name if link.name == model.root_link else f"{e.name}__{link.name}"
-            np.testing.assert_allclose(robot.get_transform(name, "scene"), e.pose @ poses[link.name], atol=1e-6)
+            np.testing.assert_allclose(robot.get_transform(name, "map"), e.pose @ poses[link.name], atol=1e-6)
             checked += 1
     assert checked > 0
     # reload the sidecar
