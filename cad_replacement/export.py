@@ -112,7 +112,7 @@ class ExportResult:
 
 
 # ---------------------------------------------------------------------------- scene -> tree
-def _link_name(obj: PlacedObject, link: str) -> str:
+def link_name(obj: PlacedObject, link: str) -> str:
     return obj.name if link == obj.model.root_link else f"{obj.name}{SEP}{link}"
 
 
@@ -162,7 +162,7 @@ def scene_to_tree(scene: ReplacedScene, *, class_table: ClassTable | None = None
         poses = obj.link_poses()
         moving_links = {j.child for j in model.movable_joints}
         for lk in model.links:
-            name = _link_name(obj, lk.name)
+            name = link_name(obj, lk.name)
             needs_mass = (obj.support == "floating" and lk.name == model.root_link) or lk.name in moving_links
             shapes, inertial = link_physics(lk, density, needs_mass=needs_mass,
                                             where=f"object {obj.name!r} link {lk.name!r}", cache_dir=cache_dir)
@@ -173,7 +173,7 @@ def scene_to_tree(scene: ReplacedScene, *, class_table: ClassTable | None = None
         zero = model.zero_configuration()
         for j in model.joints:
             jname = f"{obj.name}{SEP}{j.name}"
-            raw_joints.append(Joint(jname, j.type, _link_name(obj, j.parent), _link_name(obj, j.child), j.origin,
+            raw_joints.append(Joint(jname, j.type, link_name(obj, j.parent), link_name(obj, j.child), j.origin,
                                     j.axis, j.lower, j.upper, j.effort, j.velocity))
             if j.movable:
                 values[jname] = j.clip(obj.joint_values.get(j.name, zero.get(j.name, 0.0)))
@@ -181,11 +181,11 @@ def scene_to_tree(scene: ReplacedScene, *, class_table: ClassTable | None = None
             parent_name = MAP_ROOT
         else:
             parent = scene.object(obj.parent)
-            parent_name = _link_name(parent, obj.parent_link or parent.model.root_link)
+            parent_name = link_name(parent, obj.parent_link or parent.model.root_link)
         origin = np.linalg.inv(link_pose[parent_name]) @ obj.pose
         origin[3] = (0.0, 0.0, 0.0, 1.0)
         raw_joints.append(Joint(f"{parent_name}{SEP}to{SEP}{obj.name}", obj.support, parent_name,
-                                _link_name(obj, model.root_link), origin))
+                                link_name(obj, model.root_link), origin))
     # URDF-safe unique names up front: subtrees and the MJCF then agree on every name and file.
     link_map = dict(zip([lk.name for lk in raw_links], unique_names(urdf_name(lk.name) for lk in raw_links),
                         strict=True))
@@ -437,10 +437,10 @@ def _root_link_names(scene: ReplacedScene, tree: KinematicTree) -> list[str]:
 
 
 __all__ = [
-    "EXPORT_FORMAT_VERSION",
     "ExportResult",
     "MjcfOptions",
     "export_scene",
+    "link_name",
     "link_physics",
     "mjcf_text",
     "scene_glb",

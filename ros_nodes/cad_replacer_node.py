@@ -13,7 +13,8 @@ re-matches only the entities whose revision, parent or box changed and republish
 
 Services: ``apply_scene_action`` (ApplySceneAction: set a joint, move, re-parent; validated by
 ``cad_replacement.actions``, a refused action changes nothing) and ``export_scene`` (std_srvs/Trigger:
-writes scene.urdf + joint_states.json + replacement.json into ``output_dir``; the message names it).
+writes the scene folder of ``cad_replacement.export`` (scene.urdf, scene.xml, scene.glb, joint_states.json)
+plus replacement.json into ``output_dir``; the message names the URDF).
 Every publication carries the scene revision in the URDF (``<!-- revision N -->``) and in the
 ``joint_states`` header's frame id is the map frame. Parameters: ``CadReplacerNodeConfig`` and
 ``CadReplacementConfig`` under ``replace.`` (dotted names, see ``ros_nodes.parameters``).
@@ -43,10 +44,10 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from cad_replacement.actions import ActionError, SceneAction, apply_action
 from cad_replacement.cad.library import CadLibrary
+from cad_replacement.export import export_scene, scene_to_tree
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replacer import CadReplacer
 from cad_replacement.scene_model import ReplacedScene
-from cad_replacement.scene_tree import scene_to_tree
 from recon_core.config import Settings, setting
 from recon_core.entity import Entity
 from recon_core.errors import EntityError
@@ -87,7 +88,7 @@ class CadReplacerNode(Node):
         library = CadLibrary(root=self.settings.cad_dir or None, seeds_per_class=self.settings.seeds_per_class)
         self.replacer = CadReplacer(library, replace_cfg)
         self.output_dir = Path(self.settings.output_dir).resolve()
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()  # _install publishes the dynamic state under the same lock
         self.scene: ReplacedScene | None = None
         self.tree: KinematicTree | None = None
         self.frames: dict[str, str] = {}
@@ -247,8 +248,7 @@ class CadReplacerNode(Node):
         if tree is None or scene is None:
             res.success, res.message = False, "no scene yet: waiting for a contact graph"
             return res
-        urdf = tree.to_urdf(self.output_dir, filename="scene.urdf")
-        write_text_atomic(self.output_dir / "joint_states.json", json.dumps(tree.joint_values, indent=1))
+        urdf = export_scene(scene, self.output_dir).urdf
         write_text_atomic(self.output_dir / "replacement.json",
                           json.dumps({"revision": scene.revision, "objects_detail": records}, indent=1))
         res.success, res.message = True, str(urdf)

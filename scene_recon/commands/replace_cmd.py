@@ -17,7 +17,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Read GRAPH_DIR (written by `scene-recon graph`: contact_graph.json + nodes/), match and align "
         "a CAD model to every object (paper Sec. 4.2-4.3: matching Eqs. 7-10, alignment Eqs. 11-14, articulation "
         "state), check the scene physically (Sec. 4.4) and write an interactive scene folder: scene.urdf (root "
-        "`map`, fixed/floating/revolute/prismatic joints), joint_states.json, meshes/ and replacement.json "
+        "`map`, fixed/floating/revolute/prismatic joints), scene.xml (MuJoCo), scene.glb, joint_states.json, "
+        "meshes/ and replacement.json "
         "(per object: candidates with matching and alignment errors, the choice, pose, scale, joint values, "
         "timings).",
     )
@@ -36,9 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from cad_replacement.cad.library import CadLibrary
+    from cad_replacement.export import export_scene
     from cad_replacement.replace_config import CadReplacementConfig
     from cad_replacement.replacer import CadReplacer
-    from cad_replacement.scene_tree import scene_to_tree
     from recon_core.contact_graph import ContactGraph
     from recon_core.entity import load_entities
     from recon_core.errors import InputError
@@ -59,9 +60,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     result = replacer.replace(graph, entities)
     out = Path(args.out)
-    tree = scene_to_tree(result.scene)
-    urdf = tree.to_urdf(out, filename="scene.urdf")
-    write_text_atomic(out / "joint_states.json", json.dumps(tree.joint_values, indent=1))
+    exported = export_scene(result.scene, out)
+    urdf = exported.urdf
     summary = {"scene": result.scene.name, "method": args.method, "objects": len(result.scene),
                "rematched": result.rematched, "timings": result.timings,
                "wall_s": time.perf_counter() - t0, "urdf": str(urdf)}
@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         ae = next((c["alignment_error"] for c in r.candidates if c["cad_id"] == r.cad_id), None)
         ae_txt = f"{1000 * ae:6.1f}" if ae is not None else "     -"
         print(f"{r.name[:20]:20s} {r.class_name[:10]:10s} {r.kind:14s} {r.cad_id[:34]:34s} {ae_txt}")
-    print(f"{len(result.scene)} objects in {summary['wall_s']:.2f} s ({result.rematched} matched); "
-          f"wrote {urdf}, {out / 'joint_states.json'}, {out / 'replacement.json'}")
+    print(f"{len(result.scene)} objects in {summary['wall_s']:.2f} s ({result.rematched} matched); wrote {urdf}, "
+          f"{exported.mjcf.name}, {exported.joint_states.name}, replacement.json"
+          + (f", {exported.glb.name}" if exported.glb else ""))
     return 0

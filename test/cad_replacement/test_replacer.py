@@ -9,9 +9,9 @@ import pytest
 import yourdfpy
 
 from cad_replacement.cad.library import CadLibrary
+from cad_replacement.export import link_name, scene_to_tree
 from cad_replacement.replacer import CadReplacer
 from cad_replacement.scene_model import MAP_ROOT
-from cad_replacement.scene_tree import link_name, scene_to_tree
 from scene_graph.builder import ContactGraphBuilder
 from scene_graph.config import load_scene_graph_config
 from scene_recon.synthetic.scene import build_scene, entities_from_ground_truth

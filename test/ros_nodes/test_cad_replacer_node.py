@@ -118,8 +118,9 @@ def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
         header = Header(frame_id="map")
         pub_entities.publish(PanopticEntityArray(header=header, entities=[entity_to_msg(e) for e in entities]))
         pub_graph.publish(graph_to_msg(graph, header))
-        assert _spin_until(node, lambda: bool(descriptions) and "cup_5" in tf and bool(joint_states), 90), \
-            proc.poll() or "no scene description"
+        ready = _spin_until(node, lambda: bool(descriptions) and "cup_5" in tf and bool(joint_states), 120)
+        assert ready, (f"description {bool(descriptions)}, tf frames {sorted(tf)}, joint states {len(joint_states)}, "
+                       f"node exit {proc.poll()}")
         urdf_path = tmp_path / "scene.urdf"
         urdf_path.write_text(descriptions[-1].data.replace(f"file://{out_dir}/", f"{out_dir}/"))
         urdf = yourdfpy.URDF.load(str(urdf_path))
