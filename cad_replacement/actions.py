@@ -16,13 +16,12 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
-import open3d.core as o3c
 import trimesh
 from numpy.typing import NDArray
 
 from cad_replacement.cad.feature_types import SupportSurface
 from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
+from cad_replacement.solids import ObjectSolids, penetration_between
 from recon_core.errors import InputError
 from recon_core.geometry.polygon import points_in_polygon
 
@@ -116,29 +115,13 @@ def _posed_bounds(obj: PlacedObject) -> tuple[NDArray[np.float64], NDArray[np.fl
 
 
 def penetration(obj: PlacedObject, others: Iterable[PlacedObject]) -> tuple[float, str]:
-    """Deepest vertex of ``obj`` inside another object's link solids (m), and that object's name.
-
-    Only objects whose bounds overlap are tested; link solids are queried with Open3D's signed
-    distance (negative inside), which needs closed meshes (procedural CAD links are watertight).
-    """
-    lo, hi = _posed_bounds(obj)
-    meshes = _posed_meshes(obj)
-    if not meshes:
-        return 0.0, ""
-    query = o3c.Tensor(np.concatenate([m.vertices for m in meshes]).astype(np.float32))
+    """Deepest point of ``obj`` inside another object's solids (or of another inside it), and who."""
+    mine = ObjectSolids(obj, hulls=False)
     worst, who = 0.0, ""
     for other in others:
-        olo, ohi = _posed_bounds(other)
-        if np.any(olo > hi) or np.any(lo > ohi):
-            continue
-        for m in _posed_meshes(other):
-            if not m.is_watertight:
-                continue
-            rs = o3d.t.geometry.RaycastingScene()
-            rs.add_triangles(o3c.Tensor(m.vertices.astype(np.float32)), o3c.Tensor(m.faces.astype(np.uint32)))
-            depth = float(-rs.compute_signed_distance(query).numpy().min())
-            if depth > worst:
-                worst, who = depth, other.name
+        depth = penetration_between(mine, ObjectSolids(other, hulls=False))
+        if depth > worst:
+            worst, who = depth, other.name
     return worst, who
 
 

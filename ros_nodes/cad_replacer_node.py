@@ -45,6 +45,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from cad_replacement.actions import ActionError, SceneAction, apply_action
 from cad_replacement.cad.library import CadLibrary
 from cad_replacement.export import export_scene, scene_to_tree
+from cad_replacement.physical_check import PhysicalCheck
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replacer import CadReplacer
 from cad_replacement.scene_model import ReplacedScene
@@ -86,7 +87,7 @@ class CadReplacerNode(Node):
         self.settings = declare_config(self, CadReplacerNodeConfig)
         replace_cfg = declare_config(self, CadReplacementConfig, prefix="replace.")
         library = CadLibrary(root=self.settings.cad_dir or None, seeds_per_class=self.settings.seeds_per_class)
-        self.replacer = CadReplacer(library, replace_cfg)
+        self.replacer = CadReplacer(library, replace_cfg, physical_check=PhysicalCheck(method=replace_cfg.method))
         self.output_dir = Path(self.settings.output_dir).resolve()
         self.lock = threading.RLock()  # _install publishes the dynamic state under the same lock
         self.scene: ReplacedScene | None = None

@@ -38,6 +38,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from cad_replacement.cad.library import CadLibrary
     from cad_replacement.export import export_scene
+    from cad_replacement.physical_check import PhysicalCheck
     from cad_replacement.replace_config import CadReplacementConfig
     from cad_replacement.replacer import CadReplacer
     from recon_core.contact_graph import ContactGraph
@@ -56,14 +57,20 @@ def run(args: argparse.Namespace) -> int:
     graph = ContactGraph.load(graph_file)
     entities = {e.id: e for e in load_entities(nodes_dir)}
     library = CadLibrary(root=args.cad_dir, seeds_per_class=args.seeds_per_class)
-    replacer = CadReplacer(library, CadReplacementConfig(method=args.method))
+    check = PhysicalCheck(method=args.method)
+    replacer = CadReplacer(library, CadReplacementConfig(method=args.method), physical_check=check)
     t0 = time.perf_counter()
     result = replacer.replace(graph, entities)
     out = Path(args.out)
     exported = export_scene(result.scene, out)
     urdf = exported.urdf
+    physics = check.last_report
     summary = {"scene": result.scene.name, "method": args.method, "objects": len(result.scene),
                "rematched": result.rematched, "timings": result.timings,
+               "physical_check": {"pairs_tested": physics.pairs_tested, "pairs_total": physics.pairs_total,
+                                  "conflicts_before": len(physics.conflicts_before),
+                                  "conflicts_after": len(physics.conflicts_after), "switches": physics.switches,
+                                  "max_penetration_after_m": physics.max_penetration_after},
                "wall_s": time.perf_counter() - t0, "urdf": str(urdf)}
     write_text_atomic(out / "replacement.json", json.dumps(
         {**summary, "objects_detail": [r.to_dict() for r in result.records]}, indent=1))
