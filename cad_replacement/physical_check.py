@@ -26,8 +26,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from cad_replacement.scene_model import PlacedObject, ReplacedScene
+from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
 from cad_replacement.solids import ObjectSolids, penetration_between
+from recon_core.geometry.polygon import points_in_polygon
 
 #: Penetration (m) above which a pair is a conflict (the issue's 1 cm).
 MAX_PENETRATION_M = 0.01
@@ -44,6 +45,8 @@ class CheckReport:
     conflicts_before: list[tuple[str, str, float]] = field(default_factory=list)
     conflicts_after: list[tuple[str, str, float]] = field(default_factory=list)
     switches: dict[str, int] = field(default_factory=dict)
+    #: |gap| (m) between each supported object and the support surface it was snapped onto, before the snap.
+    support_gaps_before: dict[str, float] = field(default_factory=dict)
     rounds: int = 0
     seconds: float = 0.0
 
@@ -133,6 +136,8 @@ class PhysicalCheck:
             conflicts = self._conflicts(scene, solids, [mover.name, other.name]) + [
                 c for c in conflicts if mover.name not in c[:2] and other.name not in c[:2]]
         result = ReplacedScene(scene.name, [objects[o.name] for o in scene], scene.frame_id, scene.revision)
+        report.support_gaps_before = snap_to_supports(result)
+        solids = {o.name: ObjectSolids(o, hulls) for o in result}
         report.conflicts_after = self._conflicts(result, solids)
         report.seconds = time.perf_counter() - t0
         return result
@@ -147,6 +152,34 @@ def _lowest(obj: PlacedObject) -> float:
 def _rest_like(trial: PlacedObject, reference: PlacedObject) -> None:
     """Put the alternative's bottom where the current choice's bottom is (on the same support)."""
     trial.pose[2, 3] += _lowest(reference) - _lowest(trial)
+
+
+def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
+    """Final snap (Sec. 4.4): rest every supported object on its parent's CAD support surface.
+
+    The surface is the one under the object's centre (a table top, the shelf level or drawer bottom it
+    stands on) nearest to its bottom; the object and what rests on it move vertically onto it and its
+    ``parent_link`` becomes the link carrying that surface. Returns the gaps closed (m, by object).
+    """
+    from cad_replacement.actions import descendants, support_spots
+
+    gaps: dict[str, float] = {}
+    for obj in scene.objects:
+        if obj.parent == MAP_ROOT:
+            continue
+        parent = scene.object(obj.parent)
+        spots = support_spots(parent)
+        centre = obj.pose[:2, 3] + obj.pose[:2, :2] @ obj.model.features.box_center[:2]
+        under = [sp for sp in spots if points_in_polygon(centre[None], sp.polygon)[0]] or spots
+        bottom = _lowest(obj)
+        spot = min(under, key=lambda sp: abs(sp.height - bottom))
+        delta = spot.height - bottom
+        gaps[obj.name] = abs(delta)
+        for o in [obj, *descendants(scene, obj.name)]:
+            o.pose[2, 3] += delta
+        if spot.link != parent.model.root_link:
+            obj.parent_link = spot.link
+    return gaps
 
 
 def pair_penetrations(scene: ReplacedScene, hulls: bool = False) -> list[tuple[str, str, float]]:
@@ -172,4 +205,5 @@ def support_gap(obj: PlacedObject, support_z: float) -> float:
     return _lowest(obj) - support_z
 
 
-__all__ = ["MAX_PENETRATION_M", "CheckReport", "PhysicalCheck", "pair_penetrations", "posed_mesh", "support_gap"]
+__all__ = ["MAX_PENETRATION_M", "CheckReport", "PhysicalCheck", "pair_penetrations", "posed_mesh", "snap_to_supports",
+           "support_gap"]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -114,4 +115,14 @@ class ReplacedScene:
         return poses[obj.parent_link or parent.model.root_link]
 
 
-__all__ = ["MAP_ROOT", "SUPPORT_JOINTS", "PlacedObject", "ReplacedScene"]
+def scene_record(scene: ReplacedScene) -> dict[str, Any]:
+    """Plain-data description of the final scene (for replacement.json): the model of each object is
+    named by ``cad_id`` + ``scale`` (layout boxes by their size), never pickled."""
+    return {"name": scene.name, "frame_id": scene.frame_id, "revision": scene.revision, "objects": [
+        {"name": o.name, "class_name": o.class_name, "cad_id": o.cad_id, "scale": o.scale.tolist(),
+         "model_size": o.model.size.tolist(), "pose": o.pose.tolist(), "joint_values": dict(o.joint_values),
+         "parent": o.parent, "parent_link": o.parent_link, "support": o.support, "movable": o.movable,
+         "entity_id": o.entity_id} for o in scene.objects]}
+
+
+__all__ = ["MAP_ROOT", "SUPPORT_JOINTS", "PlacedObject", "ReplacedScene", "scene_record"]

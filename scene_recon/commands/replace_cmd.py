@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from cad_replacement.physical_check import PhysicalCheck
     from cad_replacement.replace_config import CadReplacementConfig
     from cad_replacement.replacer import CadReplacer
+    from cad_replacement.scene_model import scene_record
     from recon_core.contact_graph import ContactGraph
     from recon_core.entity import load_entities
     from recon_core.errors import InputError
@@ -73,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
                                   "max_penetration_after_m": physics.max_penetration_after},
                "wall_s": time.perf_counter() - t0, "urdf": str(urdf)}
     write_text_atomic(out / "replacement.json", json.dumps(
-        {**summary, "objects_detail": [r.to_dict() for r in result.records]}, indent=1))
+        {**summary, "objects_detail": [r.to_dict() for r in result.records],
+         "scene": scene_record(result.scene)}, indent=1))
     cad = [r for r in result.records if r.kind == "cad"]
     if not cad and not any(r.kind == "observed_mesh" for r in result.records):
         raise InputError(f"no object of {graph_file} could be replaced: the graph has no object nodes with "
