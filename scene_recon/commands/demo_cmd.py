@@ -12,8 +12,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "demo",
         help="run the pipeline end to end on a generated default scene",
         description="Generate the default synthetic scene (seed 0, 20 objects, 300 frames), read it back through "
-        "the data layer, map it (oracle segmentation at `default` noise), build its contact graph, and score the "
-        "map and the graph against the ground truth. Every step is the subcommand of the same name.",
+        "the data layer, map it (oracle segmentation at `default` noise), build its contact graph, replace its objects "
+        "by CAD models (an interactive URDF/MJCF scene) and score map, graph and scene against the ground truth. "
+        "Every step is the subcommand of the same name.",
     )
     p.add_argument("--out", default="out/demo", help="output folder (replaced if it exists; default out/demo)")
     p.add_argument("--objects", type=int, default=20)
@@ -40,6 +41,10 @@ def run(args: argparse.Namespace) -> int:
         ("5. contact graph of the mapped entities", ["graph", str(out / "map"), "--out", str(out / "graph")]),
         ("6. contact graph against the ground truth",
          ["eval-graph", str(out / "graph" / "contact_graph.json"), str(gt)]),
+        ("7. CAD replacement: the interactive scene (URDF + MJCF)",
+         ["replace", str(out / "graph"), "--out", str(out / "scene")]),
+        ("8. interactive scene against the ground truth (poses, articulation, physics)",
+         ["eval-scene", str(out / "scene"), str(gt)]),
     ]
     for title, argv in steps:
         print(f"\n== {title}\n$ scene-recon {' '.join(argv)}", flush=True)
@@ -47,6 +52,10 @@ def run(args: argparse.Namespace) -> int:
         if code:
             print(f"demo stopped: step '{title}' failed with exit code {code}")
             return code
+    from scene_recon.synthetic.overview import render_scene_picture
+
+    picture = render_scene_picture(out / "scene", out / "scene" / "before_after.png", out / "map" / "panoptic_map.png")
     print(f"\nlook at: {gt / 'overview.png'}, {out / 'map' / 'panoptic_map.png'}, "
-          f"{out / 'graph' / 'contact_graph.png'}")
+          f"{out / 'graph' / 'contact_graph.png'}, {picture}; load {out / 'scene' / 'scene.urdf'} in RViz or "
+          f"{out / 'scene' / 'scene.xml'} in MuJoCo")
     return 0

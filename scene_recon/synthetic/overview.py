@@ -282,3 +282,39 @@ def render_map_picture(ents: list[Entity], poses: list[np.ndarray], path: Path) 
         return False
     render_overview(items, np.array(poses) if poses else None, path)
     return True
+
+
+def render_scene_picture(scene_dir: str | Path, path: str | Path, before: str | Path | None = None) -> Path:
+    """Bird's-eye picture of a replaced scene (``scene.glb`` of ``scene-recon replace``, walls left out):
+    one colour per object; with ``before`` (a picture of the same room: the map or the ground truth) the
+    two side by side."""
+    import trimesh
+
+    scene = trimesh.load(Path(scene_dir) / "scene.glb", force="scene")
+    items: list[RenderItem] = []
+    owners: dict[str, int] = {}
+    for node in scene.graph.nodes_geometry:
+        transform, geom = scene.graph[node]
+        mesh = scene.geometry.get(geom)
+        if not isinstance(mesh, trimesh.Trimesh) or not len(mesh.faces):
+            continue
+        posed = mesh.copy()
+        posed.apply_transform(transform)
+        owner = str(node).split("__")[0]
+        if owner.startswith("wall"):  # walls would hide the room from the bird's-eye camera
+            continue
+        label = owners.setdefault(owner, len(owners) + 1)
+        items.append(RenderItem(mesh=posed, label=label, name=owner))
+    if not items:
+        raise ValueError(f"{scene_dir}/scene.glb holds no geometry")
+    image = render_overview(items)
+    if before is not None and Path(before).is_file():
+        left = cv2.cvtColor(cv2.imread(str(before)), cv2.COLOR_BGR2RGB)
+        height = min(left.shape[0], image.shape[0])
+        resize = [cv2.resize(im, (int(im.shape[1] * height / im.shape[0]), height)) for im in (left, image)]
+        image = np.concatenate([resize[0], np.full((height, 8, 3), 255, np.uint8), resize[1]], axis=1)
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+        raise OSError(f"could not write {out}")
+    return out
