@@ -1,0 +1,152 @@
+"""Stage 4 on whole scenes: contact graph -> CAD replacement -> physical check -> export, scored end to end.
+
+For every suite scene (``scene-recon suite NAME``) the same contact graph goes through the whole
+replacement (``CadReplacer`` + ``PhysicalCheck`` + ``export_scene``) in these settings, all in one run:
+
+  gt/ours/in-library   ground-truth entities (the paper's cg_map setting), our method, a library
+                       holding the scene objects' own models (plus 10 seeds per class)
+  gt/ours/unseen       the same with the default library only (10 seeds per class: the scenes' seeds
+                       are random 31-bit integers, never among them)
+  gt/paper/unseen      the paper's method (all 24 orientations, dense LM, hull collisions) on the same
+                       graphs and library
+  mapped/ours/unseen   entities of the scene mapped with the oracle at `default` noise (``--maps DIR``
+                       reuses maps of `bench_graph_mapped.py`/`scene-recon map`; otherwise they are mapped)
+
+Figures per setting: pose success, front flips, Alignment Error median/p90, articulation, max
+interpenetration, support gaps, PyBullet/MuJoCo stillness of the export, replacement time per scene.
+Writes ``benchmarks/results/bench_cad.json``.
+
+    .venv/bin/python benchmarks/bench_cad.py [--scenes bench-small ...] [--no-paper] [--no-mapped]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from benchmarks.common import write_result
+from cad_replacement.cad.library import CadLibrary
+from cad_replacement.export import export_scene
+from cad_replacement.physical_check import PhysicalCheck
+from cad_replacement.replace_config import CadReplacementConfig
+from cad_replacement.replacer import CadReplacer
+from cad_replacement.seeded_library import SeededLibrary
+from recon_core.entity import Entity, load_entities
+from scene_graph.builder import ContactGraphBuilder
+from scene_graph.config import load_scene_graph_config
+from scene_recon.evaluation.scene_eval import evaluate_scene
+from scene_recon.synthetic.scene import GroundTruthScene, entities_from_ground_truth
+from scene_recon.synthetic.suite import SUITE, suite_scene
+
+
+def graph_of(entities: list[Entity], name: str):
+    builder = ContactGraphBuilder(load_scene_graph_config())
+    builder.update(entities)
+    return builder.build(name=name), builder.node_entities()
+
+
+def mapped_entities(bag: Path, maps: Path | None, name: str) -> list[Entity]:
+    folder = (maps / name) if maps else Path(tempfile.mkdtemp()) / name
+    if not (folder / "entities.json").is_file():
+        from scene_recon.cli import main
+
+        with contextlib.redirect_stdout(io.StringIO()):
+            main(["map", str(bag), "--out", str(folder), "--segmenter", "oracle", "--noise", "default", "--json"])
+    return load_entities(folder)
+
+
+def run_setting(graph, nodes, gt: GroundTruthScene, library: CadLibrary, method: str, out: Path) -> dict[str, Any]:
+    check = PhysicalCheck(method=method)
+    replacer = CadReplacer(library, CadReplacementConfig(method=method), physical_check=check)
+    t0 = time.perf_counter()
+    result = replacer.replace(graph, nodes)
+    replace_s = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    export_scene(result.scene, out)
+    export_s = time.perf_counter() - t1
+    with contextlib.redirect_stdout(io.StringIO()):
+        figures = evaluate_scene(result.scene, {r.name: r.to_dict() for r in result.records}, gt, library, out)
+    objects = sum(1 for r in result.records if r.kind == "cad")
+    return {"replace_s": replace_s, "export_s": export_s, "cad_objects": objects,
+            "per_object_s": replace_s / max(objects, 1), "physical_check_s": result.timings["physical_check_s"],
+            "conflicts_before": len(check.last_report.conflicts_before),
+            "conflicts_after": len(check.last_report.conflicts_after), **figures}
+
+
+def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    def mean(key: str, sub: str | None = None) -> float | None:
+        vals = [(r["objects"].get(key) if sub is None else r.get(sub, {}).get(key)) for r in rows]
+        vals = [v for v in vals if v is not None]
+        return float(np.mean(vals)) if vals else None
+
+    still = {e: [r["physics"][e]["still_fraction"] for r in rows if "physics" in r] for e in ("pybullet", "mujoco")}
+    return {
+        "pose_success": mean("pose_success"), "front_flips": mean("front_flips"), "ae_median": mean("ae_median"),
+        "ae_p90": mean("ae_p90"), "articulation_type_count_ok": mean("articulation_type_count_ok"),
+        "joint_value_ok": mean("joint_value_ok"),
+        "max_interpenetration_m": max(r["max_interpenetration_m"] for r in rows),
+        "support_gap_max_m": max((r["support_gap_max_m"] or 0.0) for r in rows),
+        "still_pybullet": float(np.mean(still["pybullet"])) if still["pybullet"] else None,
+        "still_mujoco": float(np.mean(still["mujoco"])) if still["mujoco"] else None,
+        "loaded_all": all(r["physics"][e]["loaded"] for r in rows for e in ("pybullet", "mujoco")),
+        "replace_s_mean": float(np.mean([r["replace_s"] for r in rows])),
+        "per_object_s_mean": float(np.mean([r["per_object_s"] for r in rows])),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenes", nargs="+", default=list(SUITE), help="suite scenes (default: all)")
+    parser.add_argument("--maps", type=Path, help="folder of mapped scenes <DIR>/<scene>/entities.json to reuse")
+    parser.add_argument("--no-paper", action="store_true", help="skip the paper's method (the slow one)")
+    parser.add_argument("--no-mapped", action="store_true", help="skip the mapped-entities setting")
+    args = parser.parse_args(argv)
+    results: dict[str, list[dict[str, Any]]] = {}
+    work = Path(tempfile.mkdtemp(prefix="bench_cad_"))
+    for name in args.scenes:
+        bag, gt_dir = suite_scene(name)
+        gt = GroundTruthScene.load(gt_dir)
+        seeds: dict[str, list[int]] = {}
+        for e in gt.entities:
+            if e.model_seed is not None:
+                seeds.setdefault(e.class_name, []).append(int(e.model_seed))
+        libraries = {"in-library": SeededLibrary(extra_seeds=seeds), "unseen": CadLibrary()}
+        graph, nodes = graph_of(entities_from_ground_truth(gt), name)
+        settings = [("gt/ours/in-library", graph, nodes, "in-library", "ours"),
+                    ("gt/ours/unseen", graph, nodes, "unseen", "ours")]
+        if not args.no_paper:
+            settings.append(("gt/paper/unseen", graph, nodes, "unseen", "paper"))
+        if not args.no_mapped:
+            mgraph, mnodes = graph_of(mapped_entities(bag, args.maps, name), name)
+            settings.append(("mapped/ours/unseen", mgraph, mnodes, "unseen", "ours"))
+        for label, g, n, lib, method in settings:
+            row = run_setting(g, n, gt, libraries[lib], method, work / name / label.replace("/", "_"))
+            row["scene"] = name
+            results.setdefault(label, []).append(row)
+            o = row["objects"]
+            print(f"{name:14s} {label:20s} pose {o.get('pose_success', 0):.3f} flips {o.get('front_flips', 0):.3f} "
+                  f"AE med {1000 * (o.get('ae_median') or 0):.1f} mm  interpen "
+                  f"{100 * row['max_interpenetration_m']:.2f} cm  gap "
+                  f"{1000 * (row['support_gap_max_m'] or 0):.1f} mm  still pb "
+                  f"{row['physics']['pybullet']['still_fraction']} mj {row['physics']['mujoco']['still_fraction']}  "
+                  f"{row['replace_s']:.2f} s ({1000 * row['per_object_s']:.0f} ms/object)", flush=True)
+    summary = {label: _summary(rows) for label, rows in results.items()}
+    for label, s in summary.items():
+        print(label, {k: (round(v, 4) if isinstance(v, float) else v) for k, v in s.items()})
+    path = write_result("bench_cad", {"summary": summary, "rows": results})
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
