@@ -107,7 +107,14 @@ def layout_object(node: GraphNode, parent: str = MAP_ROOT) -> PlacedObject | Non
     box = node.box
     size = np.maximum(np.asarray(box.size, dtype=np.float64), MIN_LAYOUT_THICKNESS)
     pose = box.pose()
-    pose[2, 3] = box.z_max - size[2] if node.class_name == "floor" else box.z_min
+    if node.class_name == "floor":
+        # the slab's top is the floor plane (the largest upward plane), not the top of the floor
+        # entity's box, which clutter and fringe lift on mapped floors
+        up = [p.plane for p in node.planes if p.plane.normal[2] > 0.9]
+        top = -max(up, key=lambda p: p.area).d if up else box.z_max
+        pose[2, 3] = top - size[2]
+    else:
+        pose[2, 3] = box.z_min
     return PlacedObject(node.name, node.class_name, box_model(node.class_name, size), pose, parent=parent,
                         entity_id=node.id, cad_id=f"box/{node.class_name}")
 
