@@ -135,6 +135,44 @@ class ObjectObservation:
         return cls(entity_id, name, class_name, pts, normals=nrm, mesh=mesh, **kwargs)  # type: ignore[arg-type]
 
 
+#: Height band (m) above the supporting plane in which up-facing points count as the support's surface.
+SUPPORT_BAND = 0.015
+#: Margin (m) around a supported child's box inside which the parent's points are the child's.
+CHILD_MARGIN = 0.01
+#: Cleaning never keeps fewer than this fraction of the points (it would be removing the object).
+MIN_KEPT_FRACTION = 0.3
+
+
+def clean_entity_points(
+    points: NDArray[np.float64],
+    normals: NDArray[np.float64] | None,
+    support_z: float | None,
+    child_boxes: Sequence[GravityBox] = (),
+) -> NDArray[np.bool_]:
+    """Mask of an entity's points that belong to the object itself (not its support or its load).
+
+    A mapped entity carries fragments of its neighbours: the label fringe around a cup includes a
+    ring of the table top under it, and a cabinet's surface includes pieces of the bottle standing on
+    it. Both inflate the box that matching and the height term (Eq. 13) start from, so a 5 cm bottle
+    became 17 cm wide and a cabinet grew by the bottle's height. Removed: up-facing points within
+    ``SUPPORT_BAND`` above the supporting plane, and points inside (``CHILD_MARGIN`` around) the boxes
+    of the objects the contact graph puts on this one. When that would remove more than
+    ``1 - MIN_KEPT_FRACTION`` of the points, nothing is removed (the graph is more likely wrong).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    keep = np.ones(len(pts), dtype=bool)
+    if support_z is not None and normals is not None:
+        keep &= ~((pts[:, 2] < support_z + SUPPORT_BAND) & (np.asarray(normals)[:, 2] > 0.8))
+    for b in child_boxes:
+        local = np.abs(b.to_local_xy(pts[:, :2]))
+        inside = np.all(local <= 0.5 * b.size[:2] + CHILD_MARGIN, axis=1)
+        inside &= (pts[:, 2] >= b.z_min - 0.5 * CHILD_MARGIN) & (pts[:, 2] <= b.z_max + CHILD_MARGIN)
+        keep &= ~inside
+    if keep.sum() < max(MIN_POINTS, MIN_KEPT_FRACTION * len(pts)):
+        return np.ones(len(pts), dtype=bool)
+    return keep
+
+
 def _side_directions(box: GravityBox) -> NDArray[np.float64]:
     """(4, 2) outward unit directions of the box sides: +x, +y, -x, -y of the box frame."""
     c, s = np.cos(box.yaw), np.sin(box.yaw)
@@ -254,6 +292,7 @@ __all__ = [
     "MIN_POINTS",
     "ObjectObservation",
     "ObservationError",
+    "clean_entity_points",
     "front_direction_from_context",
     "side_clearances",
 ]

@@ -20,15 +20,16 @@ as a collision; ours measures solids.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
+from numpy.typing import NDArray
 
 from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
 from cad_replacement.solids import ObjectSolids, penetration_between
-from recon_core.geometry.polygon import points_in_polygon
+from recon_core.geometry.polygon import point_segment_distances, points_in_polygon
 
 #: Penetration (m) above which a pair is a conflict (the issue's 1 cm).
 MAX_PENETRATION_M = 0.01
@@ -97,7 +98,7 @@ class PhysicalCheck:
                     out.append((a, b, depth))
         return out
 
-    def __call__(self, scene: ReplacedScene, alternatives: Mapping[str, list[PlacedObject]]) -> ReplacedScene:
+    def __call__(self, scene: ReplacedScene, alternatives: Mapping[str, Sequence[PlacedObject]]) -> ReplacedScene:
         t0 = time.perf_counter()
         self.last_report = report = CheckReport()
         hulls = self.method == "paper"
@@ -154,12 +155,42 @@ def _rest_like(trial: PlacedObject, reference: PlacedObject) -> None:
     trial.pose[2, 3] += _lowest(reference) - _lowest(trial)
 
 
+def _footprint(obj: PlacedObject) -> tuple[NDArray[np.float64], float, float]:
+    """xy of the object's box centre, the radius of its footprint's inscribed circle, its height."""
+    f = obj.model.features
+    centre = obj.pose[:2, 3] + obj.pose[:2, :2] @ f.box_center[:2]
+    return centre, 0.5 * float(min(f.box_size[0], f.box_size[1])), float(f.box_size[2])
+
+
+def _inside_margin(points: NDArray[np.float64], polygon: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Signed distance of xy points to a polygon's outline: positive inside, negative outside."""
+    edge = point_segment_distances(points, polygon, np.roll(polygon, -1, axis=0)).min(axis=1)
+    return np.where(points_in_polygon(points, polygon), edge, -edge)
+
+
+def _onto_surface(centre: NDArray[np.float64], polygon: NDArray[np.float64], margin: float) -> NDArray[np.float64]:
+    """Smallest horizontal move bringing ``centre`` at least ``margin`` inside ``polygon``.
+
+    Candidates lie on the segment from the centre to the polygon's centroid (support polygons are
+    convex outlines), so the object moves straight towards the middle of the surface and no further
+    than needed; a surface too small for the margin gets the object at its centroid.
+    """
+    target = polygon.mean(axis=0)
+    steps = np.linspace(0.0, 1.0, 41)[:, None]
+    trial = centre[None] + steps * (target - centre)[None]
+    inside = np.flatnonzero(_inside_margin(trial, polygon) >= margin)
+    return (trial[inside[0]] if len(inside) else target) - centre
+
+
 def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
     """Final snap (Sec. 4.4): rest every supported object on its parent's CAD support surface.
 
-    The surface is the one under the object's centre (a table top, the shelf level or drawer bottom it
-    stands on) nearest to its bottom; the object and what rests on it move vertically onto it and its
-    ``parent_link`` becomes the link carrying that surface. Returns the gaps closed (m, by object).
+    The surface is one the object fits on (its height under the surface's clearance: a bottle on a
+    cabinet never goes into a closed drawer), preferring those under the object's centre, nearest
+    to its bottom. The object (and what rests on it) moves vertically onto it and, when its centre
+    is closer than a quarter of its footprint to the surface's edge or off it (it would tip over in
+    a simulator), horizontally onto it; ``parent_link`` becomes the link carrying that surface.
+    Returns the gaps closed (m, by object).
     """
     from cad_replacement.actions import descendants, support_spots
 
@@ -168,15 +199,19 @@ def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
         if obj.parent == MAP_ROOT:
             continue
         parent = scene.object(obj.parent)
+        centre, radius, height = _footprint(obj)
         spots = support_spots(parent)
-        centre = obj.pose[:2, 3] + obj.pose[:2, :2] @ obj.model.features.box_center[:2]
-        under = [sp for sp in spots if points_in_polygon(centre[None], sp.polygon)[0]] or spots
+        fitting = [sp for sp in spots if sp.clearance is None or sp.clearance >= 0.9 * height] or spots
+        under = [sp for sp in fitting if points_in_polygon(centre[None], sp.polygon)[0]] or fitting
         bottom = _lowest(obj)
         spot = min(under, key=lambda sp: abs(sp.height - bottom))
-        delta = spot.height - bottom
-        gaps[obj.name] = abs(delta)
+        move = np.zeros(3)
+        move[2] = spot.height - bottom
+        if parent.model.source != "box":  # layout slabs are the room: nothing falls off the floor
+            move[:2] = _onto_surface(centre, spot.polygon, 0.5 * radius)
+        gaps[obj.name] = abs(float(move[2]))
         for o in [obj, *descendants(scene, obj.name)]:
-            o.pose[2, 3] += delta
+            o.pose[:3, 3] += move
         if spot.link != parent.model.root_link:
             obj.parent_link = spot.link
     return gaps

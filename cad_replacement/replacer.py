@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -31,7 +31,13 @@ import trimesh
 from cad_replacement.alignment import GeometryCache
 from cad_replacement.cad.model import CadModel, Link, bounding_box_features
 from cad_replacement.layout_models import MIN_LAYOUT_THICKNESS, box_model
-from cad_replacement.observation import ObjectObservation, ObservationError, front_direction_from_context
+from cad_replacement.observation import (
+    MESH_SAMPLES,
+    ObjectObservation,
+    ObservationError,
+    clean_entity_points,
+    front_direction_from_context,
+)
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replace_object import CadSource, ObjectReplacement, replace_object
 from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
@@ -39,7 +45,9 @@ from recon_core.classes import ClassTable, load_class_table
 from recon_core.contact_graph import ContactGraph, GraphNode, SupportEdge
 from recon_core.entity import Entity
 from recon_core.geometry.box import GravityBox
+from recon_core.geometry.box_fit import fit_gravity_box
 from recon_core.geometry.plane import Plane
+from recon_core.geometry.plane_fit import sample_mesh
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +56,7 @@ LAYOUT = "layout"
 OBSERVED_RGBA = (0.55, 0.6, 0.7, 1.0)
 
 #: A global physical check: (scene of first choices, ranked alternatives per object name) -> scene.
-PhysicalCheck = Callable[[ReplacedScene, Mapping[str, list[PlacedObject]]], ReplacedScene]
+PhysicalCheck = Callable[[ReplacedScene, Mapping[str, Sequence[PlacedObject]]], ReplacedScene]
 
 
 @dataclass
@@ -100,7 +108,8 @@ def support_height(edge: SupportEdge | None, parent_box: GravityBox | None) -> f
     return None if parent_box is None else parent_box.z_max
 
 
-def layout_object(node: GraphNode, parent: str = MAP_ROOT) -> PlacedObject | None:
+def layout_object(node: GraphNode, parent: str = MAP_ROOT,
+                  room_center: np.ndarray | None = None) -> PlacedObject | None:
     """A box model for a layout node; the floor's top stays where the floor surface was seen."""
     if node.box is None:
         return None
@@ -115,8 +124,46 @@ def layout_object(node: GraphNode, parent: str = MAP_ROOT) -> PlacedObject | Non
         pose[2, 3] = top - size[2]
     else:
         pose[2, 3] = box.z_min
+        if node.class_name == "wall" and room_center is not None:
+            pose[:3, 3] = _wall_slab_centre(node, pose, size, room_center)
     return PlacedObject(node.name, node.class_name, box_model(node.class_name, size), pose, parent=parent,
                         entity_id=node.id, cad_id=f"box/{node.class_name}")
+
+
+def _wall_slab_centre(node: GraphNode, pose: np.ndarray, size: np.ndarray, room_center: np.ndarray) -> np.ndarray:
+    """Bottom centre of a wall slab whose room-side face lies on the wall's room-side plane.
+
+    A mapped wall is a thin shell of surface; centring a slab of ``MIN_LAYOUT_THICKNESS`` on it
+    pushes half the slab into the room, where furniture standing against the wall then collides.
+    Of the wall's vertical planes, the one nearest the room centre (in front of which the room
+    lies) is its room side; the slab extends behind it, away from the room.
+    """
+    best: tuple[float, np.ndarray, float] | None = None
+    for sp in node.planes:
+        p = sp.plane
+        if abs(p.normal[2]) >= 0.3:
+            continue
+        n = np.array([p.normal[0], p.normal[1], 0.0])
+        n /= max(float(np.linalg.norm(n)), 1e-12)
+        d = float(p.signed_distance(room_center[None, :])[0])
+        if d < 0.0:  # orient the normal towards the room
+            n, d = -n, -d
+        if best is None or d < best[0]:
+            best = (d, n, float(p.signed_distance(pose[None, :3, 3])[0]) * (1.0 if n @ p.normal[:3] > 0 else -1.0))
+    if best is None:
+        return pose[:3, 3]
+    _, n, offset = best  # offset: the box centre's height above the room-side plane, along n
+    k = int(np.argmax(np.abs(pose[:2, :3].T @ n[:2])))  # the box axis across the wall
+    return pose[:3, 3] - (offset + 0.5 * float(size[k])) * n
+
+
+def _room_center(graph: ContactGraph) -> np.ndarray | None:
+    """A point inside the room: the floor's box centre, else the mean centre of the object boxes."""
+    floors = [n.box for n in graph.nodes.values() if n.class_name == "floor" and n.box is not None]
+    if floors:
+        return np.asarray(max(floors, key=lambda b: b.footprint_area).center, dtype=np.float64)
+    boxes = [n.box.center for n in graph.nodes.values() if n.category != LAYOUT and n.box is not None]
+    return np.mean(np.asarray(boxes, dtype=np.float64), axis=0) if boxes else None
 
 
 def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: str) -> PlacedObject | None:
@@ -162,9 +209,20 @@ class CadReplacer:
         assert box is not None
         front = front_direction_from_context(box, [b for b in obstacles if b is not box], walls)
         mesh = trimesh.Trimesh(entity.vertices, entity.faces, process=False)
-        return ObjectObservation.from_mesh(node.id, node.name, node.class_name, mesh, box=box,
-                                           support_z=support_height(edge, parent.box if parent else None),
-                                           front_hint=front)
+        support_z = support_height(edge, parent.box if parent else None)
+        if len(mesh.faces) == 0:
+            raise ObservationError(f"{node.name!r}: mesh is empty")
+        points, normals = sample_mesh(mesh, MESH_SAMPLES, 0)
+        children = [graph.nodes[c].box for c, e in graph.supports.items()
+                    if e.parent_id == node.id and c in graph.nodes and graph.nodes[c].box is not None]
+        keep = clean_entity_points(points, normals, support_z, children)  # type: ignore[arg-type]
+        if not keep.all():
+            points, normals = points[keep], normals[keep]
+            refit = fit_gravity_box(points)
+            bottom = min(refit.z_min, support_z) if support_z is not None else refit.z_min
+            box = refit.with_z_range(bottom, refit.z_max)
+        return ObjectObservation(node.id, node.name, node.class_name, points, box=box, normals=normals,
+                                 support_z=support_z, front_hint=front, mesh=mesh)
 
     def _replace_node(self, node: GraphNode, entity: Entity, graph: ContactGraph, walls: list[Plane],
                       obstacles: list[GravityBox]) -> _Cached:
@@ -205,9 +263,10 @@ class CadReplacer:
         obstacles = [n.box for n in graph.nodes.values() if n.box is not None and n.id != graph.root_id]
         objects: list[PlacedObject] = []
         records: list[ReplacementRecord] = []
-        alternatives: dict[str, list[PlacedObject]] = {}
+        alternatives: dict[str, Sequence[PlacedObject]] = {}
         names = {nid: n.name for nid, n in graph.nodes.items()}
         placed: set[str] = set()
+        room_center = _room_center(graph)
         for nid, _depth in graph.walk():
             if nid == graph.root_id:
                 continue
@@ -219,7 +278,7 @@ class CadReplacer:
             support = edge.joint if edge is not None and edge.joint in ("fixed", "floating") else "fixed"
             obj: PlacedObject | None
             if node.category == LAYOUT:
-                obj = layout_object(node, parent)
+                obj = layout_object(node, parent, room_center)
                 record = ReplacementRecord(nid, node.name, node.class_name, "layout", cad_id="box")
             else:
                 entity = entities.get(nid)
@@ -234,9 +293,7 @@ class CadReplacer:
                     obj = observed_mesh_object(node, entity, parent, support)
                     record.kind = "observed_mesh"
                 elif cached.replacement is not None:
-                    alternatives[obj.name] = [a for a in (self._placed(node, cached.replacement, parent, support, k)
-                                                          for k in range(1, len(cached.replacement.candidates)))
-                                              if a is not None]
+                    alternatives[obj.name] = _RankedAlternatives(self, node, cached.replacement, parent, support)
             if obj is None:
                 record.kind = "skipped"
                 records.append(record)
@@ -274,6 +331,34 @@ class CadReplacer:
         return PlacedObject(node.name, cand.class_name, model, cand.pose.copy(), parent=parent, support=support,
                             movable=node.movable, entity_id=node.id, joint_values=dict(cand.joint_values),
                             scale=cand.scale, cad_id=cand.key)
+
+
+class _RankedAlternatives(Sequence[PlacedObject]):
+    """The ranked backup candidates (2nd, 3rd, ...) of one object, built only when asked for.
+
+    The physical check usually needs none or one of them; scaling a CAD model for all top-k
+    candidates of every object up front cost more than matching the whole scene.
+    """
+
+    def __init__(self, replacer: CadReplacer, node: GraphNode, rep: ObjectReplacement, parent: str,
+                 support: str) -> None:
+        self._args = (replacer, node, rep, parent, support)
+        self._built: dict[int, PlacedObject | None] = {}
+        self._len = max(len(rep.candidates) - 1, 0)
+
+    def __len__(self) -> int:
+        return self._len
+
+    def __getitem__(self, index: int) -> PlacedObject:  # type: ignore[override]
+        if not 0 <= index < self._len:
+            raise IndexError(index)
+        if index not in self._built:
+            replacer, node, rep, parent, support = self._args
+            self._built[index] = replacer._placed(node, rep, parent, support, index + 1)
+        obj = self._built[index]
+        if obj is None:  # pragma: no cover - every ranked candidate has a model
+            raise IndexError(index)
+        return obj
 
 
 __all__ = ["CadReplacer", "PhysicalCheck", "ReplacementRecord", "ReplacementResult", "layout_object",

@@ -93,7 +93,7 @@ def rectangles_overlap(a: ArrayLike, b: ArrayLike) -> bool:
     return not (np.any(proj_a.max(0) < proj_b.min(0)) or np.any(proj_b.max(0) < proj_a.min(0)))
 
 
-def _point_segment_distance(p: NDArray[np.float64], a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray:
+def point_segment_distances(p: NDArray[np.float64], a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray:
     """(P, S) distances from points (P, 2) to segments a-b (S, 2) (zero-length segments allowed)."""
     ab = b - a
     len2 = np.einsum("ij,ij->i", ab, ab)
@@ -111,8 +111,8 @@ def polygon_distance(a: ArrayLike, b: ArrayLike) -> float:
         return float("inf")
     if rectangles_overlap(pa, pb):
         return 0.0
-    d1 = _point_segment_distance(pa, pb, np.roll(pb, -1, axis=0)).min()
-    d2 = _point_segment_distance(pb, pa, np.roll(pa, -1, axis=0)).min()
+    d1 = point_segment_distances(pa, pb, np.roll(pb, -1, axis=0)).min()
+    d2 = point_segment_distances(pb, pa, np.roll(pa, -1, axis=0)).min()
     return float(min(d1, d2))
 
 

@@ -71,3 +71,32 @@ def test_containment_is_not_a_collision_for_solids_but_is_for_hulls():
     hull = {(a, b): d for a, b, d in pair_penetrations(scene, hulls=True)}
     assert solid[("cabinet_1", "cup_1")] <= 0.01  # resting on a shelf level inside: fine
     assert hull[("cabinet_1", "cup_1")] > 0.03  # the paper's hull test calls it a collision
+
+
+def test_snap_puts_an_object_over_the_edge_back_onto_its_surface_and_never_into_a_closed_drawer():
+    cabinet = build_model("cabinet", 0)
+    bottle = build_model("bottle", 0)
+    cab = PlacedObject("cabinet_1", "cabinet", cabinet, _pose(0, 0, 0), parent="floor")
+    top = float(cabinet.size[2])
+    half_depth = 0.5 * float(cabinet.size[0])
+    # the bottle's centre hangs 1 cm past the front edge, and it sits a little below the top
+    on_edge = PlacedObject("bottle_1", "bottle", bottle, _pose(half_depth + 0.01, 0, top - 0.04),
+                           parent="cabinet_1", support="floating", movable=True)
+    scene = ReplacedScene("room", [
+        PlacedObject("floor", "floor", box_model("floor", (6, 6, 0.05)), _pose(0, 0, -0.05)), cab, on_edge])
+    from cad_replacement.actions import support_spots
+    from cad_replacement.physical_check import snap_to_supports
+
+    snap_to_supports(scene)
+    moved = scene.object("bottle_1")
+    bottom = min(float((m.vertices @ moved.pose[:3, :3].T + moved.pose[:3, 3])[:, 2].min())
+                 for m in moved.model.posed_link_meshes().values())
+    assert abs(bottom - top) < 1e-3  # on the top, not on a drawer bottom below it
+    assert moved.parent_link in ("", cabinet.root_link)
+    spot = next(s for s in support_spots(cab) if abs(s.height - top) < 1e-3)
+    from recon_core.geometry.polygon import points_in_polygon
+
+    centre = moved.pose[:2, 3] + moved.pose[:2, :2] @ bottle.features.box_center[:2]
+    assert points_in_polygon(centre[None], spot.polygon)[0]
+    assert centre[0] < half_depth - 0.25 * min(bottle.size[:2]) + 1e-6  # a margin from the edge
+

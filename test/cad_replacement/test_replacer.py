@@ -77,3 +77,84 @@ def test_an_update_rematches_only_what_changed(replaced):
     third = replacer.replace(graph, changed)
     assert third.rematched == 1
     assert [r.name for r in third.records if r.kind == "cad" and not r.reused] == [target.name]
+
+
+def test_ranked_alternatives_are_built_only_when_the_check_asks(replaced):
+    """Scaling a CAD model for every backup candidate cost more than matching the scene: lazy."""
+    _scene, graph, nodes, _replacer, _result = replaced
+    asked: list[int] = []
+
+    def check(scene, alternatives):
+        name, alts = next((n, a) for n, a in alternatives.items() if len(a) > 1)
+        asked.append(len(alts))
+        second = alts[1]
+        assert second.name == name and second.cad_id
+        return scene
+
+    replacer = CadReplacer(CadLibrary(seeds_per_class=3), physical_check=check)
+    built: list[int] = []
+    real = replacer._placed
+
+    def counting(node, rep, parent, support, index=0):
+        built.append(index)
+        return real(node, rep, parent, support, index)
+
+    replacer._placed = counting  # type: ignore[method-assign]
+    result = replacer.replace(graph, nodes)
+    cad = [r for r in result.records if r.kind == "cad"]
+    assert asked and cad
+    assert built.count(0) == len(cad)  # every first choice
+    assert sorted(i for i in built if i > 0) == [2]  # and only the one backup the check read
+
+
+def test_mapped_fragments_of_support_and_load_are_cleaned_from_an_observation():
+    from cad_replacement.observation import clean_entity_points
+    from recon_core.geometry.box import GravityBox
+
+    rng = np.random.default_rng(0)
+    # a 5 cm bottle (cylinder surface) on a table at z = 0.7, with a ring of table top around it
+    t = rng.uniform(0, 2 * np.pi, 600)
+    z = rng.uniform(0.7, 0.95, 600)
+    bottle = np.c_[0.025 * np.cos(t), 0.025 * np.sin(t), z]
+    bottle_n = np.c_[np.cos(t), np.sin(t), np.zeros(600)]
+    r = rng.uniform(0.03, 0.09, 300)
+    a = rng.uniform(0, 2 * np.pi, 300)
+    ring = np.c_[r * np.cos(a), r * np.sin(a), np.full(300, 0.702)]
+    ring_n = np.tile([0.0, 0.0, 1.0], (300, 1))
+    pts, nrm = np.r_[bottle, ring], np.r_[bottle_n, ring_n]
+    keep = clean_entity_points(pts, nrm, 0.7)
+    assert keep[:600].all() and not keep[600:].any()
+    # a cabinet whose surface carries pieces of the bottle standing on it
+    cab = np.c_[rng.uniform(-0.3, 0.3, 800), rng.uniform(-0.2, 0.2, 800), np.full(800, 0.7)]
+    on_top = np.c_[rng.uniform(-0.025, 0.025, (100, 2)), rng.uniform(0.72, 0.9, 100)]
+    pts = np.r_[cab, on_top]
+    nrm = np.tile([0.0, 0.0, 1.0], (900, 1))
+    child = GravityBox(np.array([0.0, 0.0, 0.825]), np.array([0.06, 0.06, 0.25]), 0.0)
+    keep = clean_entity_points(pts, nrm, 0.0, [child])
+    assert not keep[800:].any() and keep[:800].mean() > 0.97
+    # removing most of an object means the graph is wrong: nothing is removed
+    assert clean_entity_points(ring, ring_n, 0.7).all()
+
+
+@pytest.mark.parametrize("seen_faces", ["inner", "both"])
+def test_wall_slab_lies_behind_the_room_side_face(seen_faces):
+    """A mapped wall is a surface: the slab must not stick into the room where furniture stands."""
+    from cad_replacement.replacer import layout_object
+    from recon_core.contact_graph import GraphNode
+    from recon_core.geometry.box import GravityBox
+    from recon_core.geometry.plane import Plane, SurfacePlane
+
+    inner_y = 2.0  # the room is at y < 2
+    planes = [SurfacePlane(Plane(np.array([0.0, -1.0, 0.0]), inner_y, area=10.0))]
+    if seen_faces == "both":  # a ground-truth wall: a 10 cm box, its outer face is just as large
+        planes.append(SurfacePlane(Plane(np.array([0.0, 1.0, 0.0]), -(inner_y + 0.1), area=10.0)))
+        box = GravityBox(np.array([0.0, inner_y + 0.05, 1.25]), np.array([4.0, 0.1, 2.5]), 0.0)
+    else:
+        box = GravityBox(np.array([0.0, inner_y, 1.25]), np.array([4.0, 0.02, 2.5]), 0.0)
+    node = GraphNode(7, "wall_1", "wall", "layout", box=box, planes=planes)
+    obj = layout_object(node, room_center=np.array([0.0, 0.0, 0.5]))
+    assert obj is not None
+    lo, hi = obj.model.mesh().bounds
+    y = obj.pose[1, 3] + np.array([lo[1], hi[1]])
+    assert abs(y.min() - inner_y) < 1e-9  # the room-side face is the observed plane
+    assert y.max() > inner_y  # the thickness is behind it
