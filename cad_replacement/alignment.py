@@ -364,6 +364,7 @@ class AlignmentProblem:
         model_samples: int = 300,
         height_target: float | None = None,
         height_weight: float = 0.0,
+        round_weight: float = 0.0,
     ) -> None:
         self.geom = geom
         self.r0 = np.asarray(base_rotation, dtype=np.float64)
@@ -380,6 +381,11 @@ class AlignmentProblem:
         self.height_w = height_weight * np.sqrt(max(len(points), 1))
         self.prepared = prepared if two_sided else None
         self.up_row = np.abs(self.r0[2])  # which model axis is vertical (|R0| row z)
+        # A round object (a solid of revolution about the vertical) has one horizontal radius: its
+        # two horizontal log-scales are tied, so fringe on one side of a small mapped object cannot
+        # stretch it into an ellipse.
+        self.round_w = round_weight * np.sqrt(max(len(points), 1))
+        self.horizontal_axes = np.argsort(self.up_row)[:2]
         self._cache_x: NDArray[np.float64] | None = None
         self._cache: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self.samples = np.zeros((0, 3))
@@ -508,6 +514,12 @@ class AlignmentProblem:
             else:
                 jh[0, :3] = self.height_w * hs
             jac_parts.append(jh)
+        if self.round_w > 0.0 and not self.uniform:
+            i, j = self.horizontal_axes
+            res_parts.append(np.array([self.round_w * (x[i] - x[j])]))
+            jr = np.zeros((1, len(x)))
+            jr[0, i], jr[0, j] = self.round_w, -self.round_w
+            jac_parts.append(jr)
         if self.aniso > 0.0 and not self.uniform:
             ls = x[:3]
             res_parts.append(self.aniso * (ls - ls.mean()))

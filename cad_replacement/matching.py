@@ -229,14 +229,14 @@ def candidate_frames(obs: ObjectObservation, planes: ObservedPlanes, extra: int 
 
 
 @functools.lru_cache(maxsize=1)
-def _default_table() -> ClassTable:
+def default_class_table() -> ClassTable:
     """The repository class table, parsed once (YAML parsing costs ~0.1 s)."""
     return load_class_table()
 
 
 def candidate_classes(class_name: str, table: ClassTable | None = None) -> list[str]:
     """The observed class first, then the classes the table marks as interchangeable with it."""
-    table = table if table is not None else _default_table()
+    table = table if table is not None else default_class_table()
     try:
         info = table.by_name(class_name)
     except UnknownClassError:

@@ -75,6 +75,9 @@ class CadReplacementConfig:
     #: height from the support to the box top (the top of a tall object is often unseen, so the
     #: points alone hardly fix the vertical scale).
     height_weight: float = 0.3
+    #: Ours: weight (per point) tying the two horizontal scales of a round class (classes.yaml
+    #: ``round``): one radius, whatever fringe a mapped cup carries on one side.
+    round_weight: float = 1.0
     #: Scale factors are clipped into this range relative to the model (models have real sizes).
     min_scale: float = 0.3
     max_scale: float = 3.0

@@ -42,7 +42,7 @@ from .alignment import (
     posed_scene,
 )
 from .articulation import ArticulationResult, estimate_joint_values
-from .matching import MatchCandidate, candidate_classes, match_candidates, observed_planes
+from .matching import MatchCandidate, candidate_classes, default_class_table, match_candidates, observed_planes
 from .observation import ObjectObservation
 from .replace_config import CadReplacementConfig
 
@@ -227,7 +227,9 @@ def replace_object(
     if cfg.method == "paper":
         results = _align_paper(obs, prepared, match.candidates, cache, cfg, timings)
     else:
-        results = _align_ours(obs, prepared, match.candidates, cache, cfg, timings)
+        table = class_table or default_class_table()
+        round_classes = frozenset(c for c in classes if c in table.names and table.by_name(c).round)
+        results = _align_ours(obs, prepared, match.candidates, cache, cfg, timings, round_classes)
     results.sort(key=lambda r: (r.stage != "full", r.score))
     chosen = results[0] if results else None
     base.candidates = results
@@ -256,9 +258,14 @@ def _align_ours(
     cache: GeometryCache,
     cfg: CadReplacementConfig,
     timings: dict[str, float],
+    round_classes: frozenset[str] = frozenset(),
 ) -> list[CandidateResult]:
     bottom = obs.bottom_z
     height = max(obs.gravity_box.z_max - bottom, 1e-3)
+
+    def round_weight(m: MatchCandidate) -> float:
+        return cfg.round_weight if m.entry.class_name in round_classes else 0.0
+
     # Coarse stage 1: every top-k candidate (all yaws of all models) is scored at its box start.
     t = time.perf_counter()
     starts: list[tuple[float, MatchCandidate, AlignmentProblem, NDArray[np.float64]]] = []
@@ -269,7 +276,7 @@ def _align_ours(
         prob = AlignmentProblem(
             geom, m.rotation, bottom, prepared.screen_points, cfg, prepared=prepared,
             anisotropy_weight=cfg.anisotropy_weight, height_target=height, height_weight=cfg.height_weight,
-            model_samples=max(60, cfg.screen_points),
+            model_samples=max(60, cfg.screen_points), round_weight=round_weight(m),
         )
         x0 = prob.start(box_start_scale(m.frame, geom, m.box_rotation, bottom), m.frame.center[:2])
         starts.append((_rms(prob, x0) * _selection_factor(m, cfg), m, prob, x0))
@@ -311,7 +318,7 @@ def _align_ours(
         prob = AlignmentProblem(
             geom, m.rotation, bottom, prepared.fit_points, cfg, prepared=prepared,
             anisotropy_weight=cfg.anisotropy_weight, height_target=height, height_weight=cfg.height_weight,
-            model_samples=cfg.align_model_samples,
+            model_samples=cfg.align_model_samples, round_weight=round_weight(m),
         )
         x2, cost2, nfev2 = prob.solve(x, cfg.align_max_nfev)
         pl = prob.placement(x2)

@@ -100,12 +100,33 @@ class _Cached:
     record: ReplacementRecord
 
 
-def support_height(edge: SupportEdge | None, parent_box: GravityBox | None) -> float | None:
-    """z of the supporting plane of a support edge (horizontal planes only), else the parent's top."""
+#: Largest gap (m) between a supported object's observed bottom and its supporting plane that is
+#: taken as occlusion of the bottom; a larger gap means the graph picked a plane below the real one.
+MAX_SUPPORT_GAP = 0.03
+
+
+def support_height(edge: SupportEdge | None, parent: GraphNode | None, child_box: GravityBox | None = None
+                   ) -> float | None:
+    """z of the plane a supported object stands on (Eq. 11's constraint), or ``None``.
+
+    The support edge's plane when it is horizontal, else the parent's box top. When the child's
+    observed bottom lies more than ``MAX_SUPPORT_GAP`` above that (a mapped cabinet offers its shelf
+    planes too, and the edge may name one below the top the bottle stands on), the parent's
+    highest upward plane under the child's bottom is used, or the child's bottom itself.
+    """
     plane: Plane | None = edge.plane if edge is not None else None
+    z: float | None = None
     if plane is not None and plane.normal[2] > 0.9:
-        return float(-plane.d / plane.normal[2])
-    return None if parent_box is None else parent_box.z_max
+        z = float(-plane.d / plane.normal[2])
+    elif parent is not None and parent.box is not None:
+        z = parent.box.z_max
+    if z is None or child_box is None or child_box.z_min - z <= MAX_SUPPORT_GAP:
+        return z
+    bottom = child_box.z_min
+    ups = [float(-p.plane.d / p.plane.normal[2]) for p in (parent.planes if parent is not None else [])
+           if p.plane.normal[2] > 0.9]
+    under = [h for h in ups if z <= h <= bottom + 0.5 * MAX_SUPPORT_GAP]
+    return max(under) if under and bottom - max(under) <= MAX_SUPPORT_GAP else bottom
 
 
 def layout_object(node: GraphNode, parent: str = MAP_ROOT,
@@ -209,7 +230,7 @@ class CadReplacer:
         assert box is not None
         front = front_direction_from_context(box, [b for b in obstacles if b is not box], walls)
         mesh = trimesh.Trimesh(entity.vertices, entity.faces, process=False)
-        support_z = support_height(edge, parent.box if parent else None)
+        support_z = support_height(edge, parent, node.box_unrefined or box)
         if len(mesh.faces) == 0:
             raise ObservationError(f"{node.name!r}: mesh is empty")
         points, normals = sample_mesh(mesh, MESH_SAMPLES, 0)
@@ -299,7 +320,7 @@ class CadReplacer:
                 records.append(record)
                 continue
             if node.category != LAYOUT and edge is not None:
-                z = support_height(edge, graph.nodes[edge.parent_id].box)
+                z = support_height(edge, graph.nodes[edge.parent_id], node.box_unrefined or node.box)
                 if z is not None:
                     rest_on(obj, z)
             record.pose = obj.pose.tolist()

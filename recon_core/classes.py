@@ -9,6 +9,7 @@ a segmentation network tends to confuse. The id ``UNKNOWN_CLASS_ID`` (-1) is res
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from collections.abc import Iterator, Mapping, Sequence
@@ -30,6 +31,8 @@ Category = Literal["layout", "rigid", "articulated"]
 CATEGORIES: tuple[str, ...] = ("layout", "rigid", "articulated")
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 _CLASS_KEYS = {"id", "name", "category", "is_thing", "movable", "density", "coco"}
+#: Keys a class may leave out (default false).
+_OPTIONAL_CLASS_KEYS = {"round"}
 _TOP_KEYS = {"version", "classes", "confusion_groups"}
 
 
@@ -45,6 +48,9 @@ class ClassInfo:
     density: float | None
     coco_names: tuple[str, ...] = ()
     confusable_with: tuple[str, ...] = ()
+    #: The body is a solid of revolution about the vertical (cups, bottles): its two horizontal
+    #: extents are one radius, so CAD alignment fits them as one scale.
+    round: bool = False
 
     @property
     def is_layout(self) -> bool:
@@ -121,8 +127,8 @@ def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
     if not isinstance(raw, Mapping):
         raise _fail(path, where, "expected a mapping")
     keys = set(raw)
-    if keys != _CLASS_KEYS:
-        missing, extra = sorted(_CLASS_KEYS - keys), sorted(keys - _CLASS_KEYS)
+    if not _CLASS_KEYS <= keys <= _CLASS_KEYS | _OPTIONAL_CLASS_KEYS:
+        missing, extra = sorted(_CLASS_KEYS - keys), sorted(keys - _CLASS_KEYS - _OPTIONAL_CLASS_KEYS)
         raise _fail(path, where, f"missing keys {missing}, unknown keys {extra}")
     cid, name = raw["id"], raw["name"]
     if isinstance(cid, bool) or not isinstance(cid, int) or cid < 0:
@@ -132,9 +138,9 @@ def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
     where = f"class {name!r}"
     if raw["category"] not in CATEGORIES:
         raise _fail(path, where, f"category must be one of {CATEGORIES}, got {raw['category']!r}")
-    for flag in ("is_thing", "movable"):
-        if not isinstance(raw[flag], bool):
-            raise _fail(path, where, f"{flag} must be true/false, got {raw[flag]!r}")
+    for flag in ("is_thing", "movable", "round"):
+        if not isinstance(raw.get(flag, False), bool):
+            raise _fail(path, where, f"{flag} must be true/false, got {raw.get(flag)!r}")
     density = raw["density"]
     if density is not None:
         if (
@@ -160,6 +166,7 @@ def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
         movable=raw["movable"],
         density=density,
         coco_names=tuple(coco),
+        round=raw.get("round", False),
     )
 
 
@@ -197,19 +204,7 @@ def parse_class_table(data: Any, path: Path | str = "<memory>") -> ClassTable:
             raise _fail(path, f"confusion_groups[{i}]", f"unknown classes {unknown}")
         for n in g:
             confusable[n].update(set(g) - {n})
-    classes = [
-        ClassInfo(
-            id=c.id,
-            name=c.name,
-            category=c.category,
-            is_thing=c.is_thing,
-            movable=c.movable,
-            density=c.density,
-            coco_names=c.coco_names,
-            confusable_with=tuple(sorted(confusable[c.name])),
-        )
-        for c in parsed
-    ]
+    classes = [dataclasses.replace(c, confusable_with=tuple(sorted(confusable[c.name]))) for c in parsed]
     return ClassTable(classes, groups)
 
 

@@ -158,3 +158,26 @@ def test_wall_slab_lies_behind_the_room_side_face(seen_faces):
     y = obj.pose[1, 3] + np.array([lo[1], hi[1]])
     assert abs(y.min() - inner_y) < 1e-9  # the room-side face is the observed plane
     assert y.max() > inner_y  # the thickness is behind it
+
+
+def test_support_height_trusts_the_plane_only_near_the_observed_bottom():
+    """A mapped cabinet offers shelf planes too; a bottle standing 11 cm above the edge's plane is
+    on the parent's top plane, not floating over a shelf (its height would otherwise grow by 11 cm)."""
+    from cad_replacement.replacer import support_height
+    from recon_core.contact_graph import GraphNode, SupportEdge
+    from recon_core.geometry.box import GravityBox
+    from recon_core.geometry.plane import Plane, SurfacePlane
+
+    def up(z: float) -> SurfacePlane:
+        return SurfacePlane(Plane(np.array([0.0, 0.0, 1.0]), -z, area=0.3))
+
+    cabinet = GraphNode(1, "cabinet_1", "cabinet", "articulated",
+                        box=GravityBox(np.array([0.0, 0.0, 0.55]), np.array([0.6, 0.4, 1.1]), 0.0),
+                        planes=[up(0.965), up(1.075)])
+    edge = SupportEdge(parent_id=1, child_id=2, plane=Plane(np.array([0.0, 0.0, 1.0]), -0.965))
+    bottle = GravityBox(np.array([0.0, 0.0, 1.23]), np.array([0.08, 0.08, 0.31]), 0.0)  # bottom 1.075
+    assert support_height(edge, cabinet, bottle) == pytest.approx(1.075)
+    near = GravityBox(np.array([0.0, 0.0, 0.98]), np.array([0.08, 0.08, 0.02]), 0.0)  # bottom 0.97
+    assert support_height(edge, cabinet, near) == pytest.approx(0.965)  # occluded bottom: the plane
+    cabinet.planes = [up(0.965)]
+    assert support_height(edge, cabinet, bottle) == pytest.approx(1.075)  # no plane there: its bottom

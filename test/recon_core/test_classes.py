@@ -41,6 +41,7 @@ def test_lookups() -> None:
     assert "desk" in table.by_name("table").confusable_with
     assert {"wardrobe", "dishwasher", "shelf"} <= set(table.by_name("cabinet").confusable_with)
     assert "bottle" in table.by_name("cup").confusable_with
+    assert table.by_name("cup").round and table.by_name("bottle").round and not table.by_name("book").round
     assert table.id_of("unknown") == UNKNOWN_CLASS_ID
     with pytest.raises(UnknownClassError, match="unknown class name 'spaceship'"):
         table.by_name("spaceship")
@@ -61,6 +62,8 @@ def test_lookups() -> None:
         (lambda d: d["classes"][4].update(coco=["chair"]), "several classes"),
         (lambda d: d["confusion_groups"].append(["table", "spaceship"]), "unknown classes"),
         (lambda d: d.update(extra=1), "unknown keys"),
+        (lambda d: d["classes"][5].update(round="yes"), "round must be true/false"),
+        (lambda d: d["classes"][5].update(roundish=True), "unknown keys"),
     ],
 )
 def test_invalid_tables_are_rejected(tmp_path: Path, edit, message: str) -> None:
