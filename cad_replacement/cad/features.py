@@ -111,10 +111,11 @@ def find_support_surfaces(
     disconnected triangles stays one surface). A piece becomes a surface when it covers at least
     ``min_area``, its outline (the convex hull of its vertices) is at least ``min_width`` across
     (panel edges are not shelves) and covered by the faces to at least ``min_fill`` (rims and
-    frames are not shelves either), and its heights spread by at most ``max_relief`` (flat). Rays cast from sample points give the free ``clearance``
-    (10th percentile of upward hit distances; ``None`` when most rays escape) and ``enclosed``
-    (blocked upwards and in all four horizontal directions). ``face_links`` names the link of
-    every face so a surface knows which link carries it.
+    frames are not shelves either), and its heights spread by at most ``max_relief`` (flat).
+    Rays cast from sample points give the free ``clearance`` (10th percentile of upward hit
+    distances; ``None`` when most rays escape) and ``enclosed`` (blocked upwards and in all four
+    horizontal directions). ``face_links`` names the link of every face so a surface knows which
+    link carries it.
     """
     if len(mesh.faces) == 0:
         return []

@@ -181,11 +181,11 @@ def test_replica_folder_meta_and_ambiguities(tmp_path: Path, write_replica_folde
     trimesh.creation.box(extents=(0.7, 1.8, 0.04)).export(folder / "meshes" / "door.obj")
     urdf = folder / "fridge.urdf"
     urdf.write_text(urdf.read_text().replace("./meshes/fridge_door.glb", "meshes/door.obj"))
-    with pytest.raises(CadImportError, match="up axis is ambiguous.*up_axis"):
+    with pytest.raises(CadImportError, match=r"up axis is ambiguous.*up_axis"):
         import_urdf_model(urdf)
     # A folder-wide model_id would name every model of the folder alike.
     (folder / "meta.yaml").write_text("class: cabinet\nmodel_id: counter\n")
-    with pytest.raises(CadImportError, match="model_id.*ambiguous"):
+    with pytest.raises(CadImportError, match=r"model_id.*ambiguous"):
         import_urdf_model(folder / "kitchen_counter.urdf")
 
 
@@ -283,9 +283,9 @@ def test_malformed_sektion_files_raise_cad_import_error(
 def test_broken_glb_and_empty_scene(tmp_path: Path, write_replica_folder) -> None:
     folder = write_replica_folder(tmp_path / "replica")
     (folder / "meshes" / "fridge_door.glb").write_bytes(b"glTF" + b"\0" * 20)
-    with pytest.raises(CadImportError, match="fridge_door.glb"):
+    with pytest.raises(CadImportError, match=r"fridge_door\.glb"):
         import_urdf_model(folder / "fridge.urdf")
     points = trimesh.Scene(trimesh.PointCloud([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.0, 1.0, 0.0]]))
     (folder / "meshes" / "fridge_door.glb").write_bytes(points.export(file_type="glb"))  # no triangles
-    with pytest.raises(CadImportError, match="fridge_door.glb holds no triangles"):
+    with pytest.raises(CadImportError, match=r"fridge_door\.glb holds no triangles"):
         import_urdf_model(folder / "fridge.urdf")
