@@ -289,3 +289,13 @@ def test_broken_glb_and_empty_scene(tmp_path: Path, write_replica_folder) -> Non
     (folder / "meshes" / "fridge_door.glb").write_bytes(points.export(file_type="glb"))  # no triangles
     with pytest.raises(CadImportError, match=r"fridge_door\.glb holds no triangles"):
         import_urdf_model(folder / "fridge.urdf")
+
+
+def test_folder_import_reports_broken_urdfs_and_keeps_the_rest(tmp_path: Path, write_replica_folder) -> None:
+    folder = write_replica_folder(tmp_path / "replica")
+    (folder / "fridge.urdf").write_text("<robot name='fridge'><link name='a'/>")
+    with pytest.raises(CadImportError, match="well-formed"):
+        import_urdf_folder(folder)
+    failed: list[Path] = []
+    models = import_urdf_folder(folder, compute_features=False, on_error=lambda path, exc: failed.append(path))
+    assert [m.model_id for m in models] == ["kitchen_counter"] and failed == [folder / "fridge.urdf"]
