@@ -32,8 +32,10 @@ Database and cache (``library``):
         .model(entry) -> CadModel; .candidates(class_name) -> [(CadEntry, ModelFeatures)]
 
 External models (``urdf_import``, ``urdf_export``):
-    import_urdf_model(path, *, class_name=None, model_id=None, meta=None,
-                      compute_features=True, seed=0) -> CadModel      raises CadImportError
+    import_urdf_model(path, *, class_name=None, model_id=None, meta=None, asset_root=None,
+                      compute_features=True, collisions=True, seed=0) -> CadModel   raises CadImportError
+    import_urdf_folder(folder, *, class_name=None, ...) -> [CadModel]   one model per URDF
+        (layouts, package:// resolution, up axis: ``asset_files``, ``import_meta``)
     export_urdf(model, mesh_dir, *, robot_name=None, density=None, class_table=None,
                 mesh_format="stl", mesh_uri_prefix="", name_prefix="") -> str
     write_urdf(model, out_dir, ...) -> Path
@@ -51,7 +53,7 @@ from cad_replacement.cad.library import CacheStats, CadEntry, CadLibrary
 from cad_replacement.cad.model import CadModel, Joint, Link
 from cad_replacement.cad.procedural import CLASS_BUILDERS, ClassBuilder, build_model
 from cad_replacement.cad.urdf_export import export_urdf, write_urdf
-from cad_replacement.cad.urdf_import import ImportMeta, import_urdf_model
+from cad_replacement.cad.urdf_import import ImportMeta, import_urdf_folder, import_urdf_model
 
 __all__ = [
     "CLASS_BUILDERS",
@@ -68,6 +70,7 @@ __all__ = [
     "build_model",
     "export_urdf",
     "find_support_surfaces",
+    "import_urdf_folder",
     "import_urdf_model",
     "mesh_features",
     "model_mesh_features",

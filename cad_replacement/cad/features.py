@@ -4,7 +4,8 @@
   4.1: 3 cm threshold, 200 iterations, keep extracting while a plane takes > 10 % of the cloud).
   Works on a mesh (area-uniform samples carry their face normals) or on a raw point cloud.
 * ``gravity_aligned_box``: the minimal-area box around points whose vertical axis is gravity.
-* ``find_support_surfaces``: upward horizontal regions of a mesh with outline and free clearance.
+* ``find_support_surfaces``: upward horizontal regions of a mesh with outline and free clearance
+  (real surfaces only: pieces at one height merged, slivers and sloped patches dropped).
 * ``mesh_features``/``model_mesh_features``: the three above bundled into ``ModelFeatures``.
 
 Procedural models get their features analytically (``assembly.py``); imported models and
@@ -18,36 +19,63 @@ from collections.abc import Sequence
 import numpy as np
 import trimesh
 from numpy.typing import NDArray
-from scipy.spatial import ConvexHull, QhullError
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from cad_replacement.cad.feature_types import ModelFeatures, SupportSurface
 from cad_replacement.cad.model import CadModel
 from recon_core.geometry.plane import SUPPORT_NORMAL_COS, merge_planes
 from recon_core.geometry.plane_fit import PLANE_DISTANCE, extract_planes
+from recon_core.geometry.polygon import polygon_area
 from recon_core.geometry.transforms import as_mesh
 
 #: Support surfaces: smallest area (m^2), height tolerance when grouping faces (m).
 SUPPORT_MIN_AREA = 0.01
 SUPPORT_HEIGHT_TOL = 0.01
+#: Pieces of one height closer than this (m) are one surface: imported meshes split a board into
+#: triangle soups, UV islands or planks that share no vertex indices.
+SUPPORT_MERGE_GAP = 0.005
+#: Narrowest usable surface (m): the top edges of panels, rims and frames hold nothing.
+SUPPORT_MIN_WIDTH = 0.05
+#: Largest height spread (m) inside one surface: a shelf is flat, a cushion or a dome is not.
+SUPPORT_MAX_RELIEF = 0.03
+#: Smallest share of its outline a surface must cover: the top edges of a carcass's side and back
+#: panels join into a U whose hull spans the whole cabinet, yet nothing stands in its middle.
+SUPPORT_MIN_FILL = 0.5
 #: Rays per support surface for clearance/enclosure tests.
 SUPPORT_RAYS = 32
 #: Fraction of rays that must be blocked in every direction for a surface to count as enclosed.
 ENCLOSED_FRACTION = 0.8
 
 
-def _face_components(mesh: trimesh.Trimesh, faces: NDArray[np.int64]) -> list[NDArray[np.int64]]:
-    """Groups of ``faces`` connected through shared vertices."""
+def _face_components(mesh: trimesh.Trimesh, faces: NDArray[np.int64], gap: float) -> list[NDArray[np.int64]]:
+    """Groups of ``faces`` whose corners come within ``gap`` of each other (by position, not index).
+
+    Positions rather than vertex indices, because imported meshes rarely share indices across a
+    flat region (per-face normals, UV seams, separate planks); ``gap`` bridges hairline joints.
+    """
     if len(faces) == 1:
         return [faces]
-    tri = mesh.faces[faces]
-    # Faces sharing a vertex: chain consecutive faces listed under each vertex.
-    vert = tri.reshape(-1)
+    corners = mesh.triangles[faces].reshape(-1, 3)
     owner = np.repeat(np.arange(len(faces)), 3)
-    order = np.argsort(vert, kind="stable")
-    same = vert[order][1:] == vert[order][:-1]
-    edges = np.stack([owner[order][:-1][same], owner[order][1:][same]], axis=1)
-    labels = trimesh.graph.connected_component_labels(edges, node_count=len(faces))
+    pairs = cKDTree(corners).query_pairs(max(gap, 1e-9), output_type="ndarray")
+    edges = owner[pairs] if len(pairs) else np.zeros((0, 2), dtype=np.int64)
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(faces), len(faces)))
+    _, labels = connected_components(graph, directed=False)
     return [faces[labels == k] for k in np.unique(labels)]
+
+
+def _min_width(polygon: NDArray[np.float64]) -> float:
+    """Smallest width of a convex polygon (rotating calipers: the widths across its edge normals)."""
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    lengths = np.linalg.norm(edges, axis=1)
+    keep = lengths > 1e-12
+    if not np.any(keep):
+        return 0.0
+    normals = np.stack([-edges[keep, 1], edges[keep, 0]], axis=1) / lengths[keep, None]
+    spans = polygon @ normals.T  # (vertices, edges)
+    return float((spans.max(axis=0) - spans.min(axis=0)).min())
 
 
 def _first_hit_distance(
@@ -69,17 +97,25 @@ def find_support_surfaces(
     min_area: float = SUPPORT_MIN_AREA,
     normal_cos: float = SUPPORT_NORMAL_COS,
     height_tol: float = SUPPORT_HEIGHT_TOL,
+    merge_gap: float = SUPPORT_MERGE_GAP,
+    min_width: float = SUPPORT_MIN_WIDTH,
+    max_relief: float = SUPPORT_MAX_RELIEF,
+    min_fill: float = SUPPORT_MIN_FILL,
     rays: int = SUPPORT_RAYS,
     seed: int = 0,
 ) -> list[SupportSurface]:
     """Upward, horizontal regions of ``mesh`` (z up) large enough to put things on.
 
     Faces with ``normal.z > normal_cos`` are grouped by height (gaps > ``height_tol`` split) and
-    by vertex connectivity; each group of at least ``min_area`` becomes a surface whose outline
-    is the convex hull of its vertices. Rays cast from sample points give the free ``clearance``
-    (10th percentile of upward hit distances; ``None`` when most rays escape) and ``enclosed``
-    (blocked upwards and in all four horizontal directions). ``face_links`` names the link of
-    every face so a surface knows which link carries it.
+    into pieces whose corners lie within ``merge_gap`` (so a board split into many small or
+    disconnected triangles stays one surface). A piece becomes a surface when it covers at least
+    ``min_area``, its outline (the convex hull of its vertices) is at least ``min_width`` across
+    (panel edges are not shelves) and covered by the faces to at least ``min_fill`` (rims and
+    frames are not shelves either), and its heights spread by at most ``max_relief`` (flat).
+    Rays cast from sample points give the free ``clearance`` (10th percentile of upward hit
+    distances; ``None`` when most rays escape) and ``enclosed`` (blocked upwards and in all four
+    horizontal directions). ``face_links`` names the link of every face so a surface knows which
+    link carries it.
     """
     if len(mesh.faces) == 0:
         return []
@@ -94,16 +130,21 @@ def find_support_surfaces(
     for group in np.split(up[order], split):
         if mesh.area_faces[group].sum() < min_area:
             continue
-        for comp in _face_components(mesh, group):
+        for comp in _face_components(mesh, group, merge_gap):
             areas = mesh.area_faces[comp]
             total = float(areas.sum())
             if total < min_area:
                 continue
+            corners = mesh.vertices[mesh.faces[comp]].reshape(-1, 3)
+            if np.ptp(corners[:, 2]) > max_relief:
+                continue
             z = float(np.average(mesh.triangles_center[comp, 2], weights=areas))
-            xy = mesh.vertices[mesh.faces[comp]].reshape(-1, 3)[:, :2]
+            xy = corners[:, :2]
             try:
                 poly = xy[ConvexHull(xy).vertices]
             except (QhullError, ValueError):
+                continue
+            if _min_width(poly) < min_width or total < min_fill * polygon_area(poly):
                 continue
             pick = rng.choice(comp, size=rays, p=areas / total)
             bary = rng.dirichlet(np.ones(3), size=rays)

@@ -6,8 +6,8 @@ re-running RANSAC. ``CadLibrary`` computes them once per model definition and st
 files named by a SHA-256 digest of the definition:
 
 * procedural: class, seed, overrides, ``PROCEDURAL_VERSION`` and ``FEATURE_CACHE_VERSION``;
-* imported: the bytes of the URDF, meshes and ``meta.yaml`` of the model folder, the class and
-  ``FEATURE_CACHE_VERSION``.
+* imported: the bytes of the URDFs, meshes and metadata files of the model folder, the URDF's
+  path in it (a folder may hold several models), the class and ``FEATURE_CACHE_VERSION``.
 
 Change the code or the files and the digest changes, so stale entries are never read. No pickle is
 used anywhere; a corrupt cache file is ignored and rewritten.
@@ -25,7 +25,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from cad_replacement.cad.asset_files import MESH_SUFFIXES, default_model_id, find_urdfs
 from cad_replacement.cad.feature_types import ModelFeatures
+from cad_replacement.cad.import_meta import load_model_meta
 from cad_replacement.cad.model import CadModel
 from cad_replacement.cad.procedural import (
     CLASS_BUILDERS,
@@ -34,25 +36,18 @@ from cad_replacement.cad.procedural import (
     procedural_definition,
     procedural_model_id,
 )
-from cad_replacement.cad.urdf_import import (
-    MESH_SUFFIXES,
-    META_FILE,
-    CadImportError,
-    find_urdf,
-    import_urdf_model,
-    load_meta,
-)
+from cad_replacement.cad.urdf_import import CadImportError, import_urdf_model
 from recon_core.classes import ClassTable
 from recon_core.names import sanitize_name
 
 _log = logging.getLogger(__name__)
 
 #: Bump whenever feature extraction (analytic or RANSAC) changes: invalidates every cache file.
-FEATURE_CACHE_VERSION = "1"
+FEATURE_CACHE_VERSION = "2"
 #: Procedural seeds per class enumerated by default.
 DEFAULT_SEEDS_PER_CLASS = 10
 #: Files of an imported model folder that enter its digest.
-_HASHED_SUFFIXES = (*MESH_SUFFIXES, ".urdf", ".yaml", ".yml", ".mtl")
+_HASHED_SUFFIXES = (*MESH_SUFFIXES, ".urdf", ".yaml", ".yml", ".mtl", ".bin")
 _CACHE_FORMAT = "scene_recon.cad_features"
 
 
@@ -64,13 +59,17 @@ def default_cache_dir() -> Path:
 
 @dataclass(frozen=True)
 class CadEntry:
-    """One model of the library, cheap to enumerate (nothing is built or loaded)."""
+    """One model of the library, cheap to enumerate (nothing is built or loaded).
+
+    Imported models: ``path`` is the URDF file, ``asset_root`` the model folder it may read from.
+    """
 
     key: str
     class_name: str
     kind: Literal["procedural", "urdf"]
     seed: int | None = None
     path: Path | None = None
+    asset_root: Path | None = None
 
 
 @dataclass
@@ -86,8 +85,8 @@ class CacheStats:
 class CadLibrary:
     """Enumerates CAD models and serves their cached features.
 
-    ``root``: folder of imported models (``<root>/<class>/<model_id>/*.urdf``; see
-    ``urdf_import``), or ``None``. ``cache_dir``: where feature JSON files go (default
+    ``root``: folder of imported models (``<root>/<class>/<folder>/*.urdf``, one model per URDF;
+    see ``urdf_import``), or ``None``. ``cache_dir``: where feature JSON files go (default
     ``default_cache_dir()``). ``classes`` restricts the procedural classes; ``class_table``
     (optional) drops imported models whose class it does not know.
     """
@@ -113,6 +112,7 @@ class CadLibrary:
         self._procedural_classes = sorted(wanted)
         self._memory: dict[str, ModelFeatures] = {}
         self._digests: dict[str, str] = {}
+        self._folder_digests: dict[Path, bytes] = {}
         self._entries = self._scan()
 
     # ------------------------------------------------------------------ enumeration
@@ -128,18 +128,33 @@ class CadLibrary:
         for class_dir in sorted(p for p in root.iterdir() if p.is_dir()):
             for model_dir in sorted(p for p in class_dir.iterdir() if p.is_dir()):
                 try:
-                    find_urdf(model_dir)
-                    meta = load_meta(model_dir / META_FILE) if (model_dir / META_FILE).is_file() else None
+                    urdfs = find_urdfs(model_dir)
                 except CadImportError as exc:
                     self._skip(model_dir, str(exc))
                     continue
-                cls = (meta.class_name if meta and meta.class_name else None) or sanitize_name(class_dir.name)
-                if self.class_table is not None and cls not in self.class_table:
-                    self._skip(model_dir, f"class {cls!r} is not in the class table")
-                    continue
-                model_id = (meta.model_id if meta and meta.model_id else None) or sanitize_name(model_dir.name)
-                entries.append(CadEntry(f"urdf/{cls}/{model_id}", cls, "urdf", path=model_dir))
+                for urdf in urdfs:
+                    entry = self._urdf_entry(urdf, model_dir, sanitize_name(class_dir.name), len(urdfs) > 1)
+                    if entry is None:
+                        continue
+                    if any(e.key == entry.key for e in entries):
+                        self._skip(urdf, f"model key {entry.key!r} is already taken by another URDF")
+                        continue
+                    entries.append(entry)
         return entries
+
+    def _urdf_entry(self, urdf: Path, model_dir: Path, folder_class: str, shared: bool) -> CadEntry | None:
+        """The entry of one URDF (class and id from its metadata), or ``None`` when unusable."""
+        try:
+            meta = load_model_meta(urdf, model_dir, shared_folder=shared)
+        except CadImportError as exc:
+            self._skip(urdf, str(exc))
+            return None
+        cls = meta.class_name or folder_class
+        if self.class_table is not None and cls not in self.class_table:
+            self._skip(urdf, f"class {cls!r} is not in the class table")
+            return None
+        model_id = meta.model_id or default_model_id(urdf, model_dir)
+        return CadEntry(f"urdf/{cls}/{model_id}", cls, "urdf", path=urdf, asset_root=model_dir)
 
     def _skip(self, path: Path, message: str) -> None:
         _log.warning("skipping CAD model %s: %s", path, message)
@@ -165,15 +180,26 @@ class CadLibrary:
             definition["features"] = FEATURE_CACHE_VERSION
             value = definition_digest(definition)
         else:
-            assert entry.path is not None
-            h = hashlib.sha256(f"urdf\0{FEATURE_CACHE_VERSION}\0{entry.class_name}\0".encode())
-            files = sorted(p for p in entry.path.rglob("*") if p.is_file() and p.suffix.lower() in _HASHED_SUFFIXES)
-            for p in files:
-                h.update(p.relative_to(entry.path).as_posix().encode() + b"\0")
-                h.update(hashlib.sha256(p.read_bytes()).digest())
+            assert entry.path is not None and entry.asset_root is not None
+            urdf = entry.path.relative_to(entry.asset_root).as_posix()
+            h = hashlib.sha256(f"urdf\0{FEATURE_CACHE_VERSION}\0{entry.class_name}\0{urdf}\0".encode())
+            h.update(self._folder_digest(entry.asset_root))
             value = h.hexdigest()
         self._digests[entry.key] = value
         return value
+
+    def _folder_digest(self, folder: Path) -> bytes:
+        """SHA-256 over the relevant files of an asset folder, computed once for all its URDFs."""
+        cached = self._folder_digests.get(folder)
+        if cached is not None:
+            return cached
+        h = hashlib.sha256()
+        files = sorted(p for p in folder.rglob("*") if p.is_file() and p.suffix.lower() in _HASHED_SUFFIXES)
+        for p in files:
+            h.update(p.relative_to(folder).as_posix().encode() + b"\0")
+            h.update(hashlib.sha256(p.read_bytes()).digest())
+        self._folder_digests[folder] = h.digest()
+        return self._folder_digests[folder]
 
     def cache_path(self, entry: CadEntry) -> Path:
         assert isinstance(self.cache_dir, Path)
@@ -204,7 +230,11 @@ class CadLibrary:
             return build_model(entry.class_name, entry.seed)
         assert entry.path is not None
         m = import_urdf_model(
-            entry.path, class_name=entry.class_name, model_id=entry.key.rsplit("/", 1)[-1], compute_features=False
+            entry.path,
+            class_name=entry.class_name,
+            model_id=entry.key.rsplit("/", 1)[-1],
+            asset_root=entry.asset_root,
+            compute_features=False,
         )
         return m.with_features(self.features(entry))
 
@@ -224,7 +254,15 @@ class CadLibrary:
             return build_model(entry.class_name, entry.seed).features
         assert entry.path is not None
         seed = int(digest[:8], 16)
-        return import_urdf_model(entry.path, class_name=entry.class_name, seed=seed).features
+        model = import_urdf_model(
+            entry.path,
+            class_name=entry.class_name,
+            model_id=entry.key.rsplit("/", 1)[-1],
+            asset_root=entry.asset_root,
+            collisions=False,  # features need no convex decomposition
+            seed=seed,
+        )
+        return model.features
 
     # ------------------------------------------------------------------ JSON cache
     def _read_cache(self, entry: CadEntry, digest: str) -> ModelFeatures | None:

@@ -109,3 +109,31 @@ def test_library_models_and_broken_imports(tmp_path: Path, write_external_model)
     assert fridge.model_id == "fridge_s0001"
     with pytest.raises(ValueError, match="no procedural builders"):
         CadLibrary(cache_dir=tmp_path / "c", classes=["spaceship"])
+
+
+def test_library_lists_one_model_per_urdf_in_real_layouts(
+    tmp_path: Path, write_replica_folder, write_sektion_package
+) -> None:
+    root = tmp_path / "models"
+    write_replica_folder(root / "cabinet" / "replica")
+    write_sektion_package(root / "cabinet" / "sektion_cabinet_model")
+    lib = CadLibrary(root=root, cache_dir=tmp_path / "cache", seeds_per_class=0, classes=[])
+    keys = sorted(e.key for e in lib.entries())
+    assert keys == ["urdf/cabinet/kitchen_counter", "urdf/cabinet/sektion_cabinet_model", "urdf/fridge/fridge"]
+    assert not lib.errors
+    entries = {e.key: e for e in lib.entries()}
+    # Two URDFs of one folder share its files but never a cache entry.
+    fridge, counter = entries["urdf/fridge/fridge"], entries["urdf/cabinet/kitchen_counter"]
+    assert fridge.asset_root == counter.asset_root and lib.digest(fridge) != lib.digest(counter)
+    assert lib.features(fridge).box_size == pytest.approx([0.69, 0.7, 1.8], abs=1e-6)
+    assert lib.features(counter).box_size == pytest.approx([0.62, 1.2, 0.9], abs=1e-6)
+    sektion = lib.model(entries["urdf/cabinet/sektion_cabinet_model"])
+    assert sektion.model_id == "sektion_cabinet_model" and len(sektion.movable_joints) == 3
+    assert sektion.link("sektion").collisions is not None and sektion.link("sektion").inertial is not None
+    assert len(sektion.features.support_surfaces) == 4
+    # A URDF that breaks is skipped on its own; its neighbours stay usable.
+    (root / "cabinet" / "replica" / "fridge.urdf").write_text("<robot")
+    again = CadLibrary(root=root, cache_dir=tmp_path / "cache2", seeds_per_class=0, classes=[])
+    assert [e.key for e, _ in again.candidates("cabinet")] == [
+        "urdf/cabinet/kitchen_counter", "urdf/cabinet/sektion_cabinet_model"]
+    assert again.candidates("fridge") == [] and any("fridge.urdf" in path for path, _ in again.errors)
