@@ -52,9 +52,7 @@ def run(args: argparse.Namespace) -> int:
         if code:
             print(f"demo stopped: step '{title}' failed with exit code {code}")
             return code
-    from scene_recon.synthetic.overview import render_scene_picture
-
-    picture = render_scene_picture(out / "scene", out / "scene" / "before_after.png", out / "map" / "panoptic_map.png")
+    picture = out / "scene" / "before_after.png"
     print(f"\nlook at: {gt / 'overview.png'}, {out / 'map' / 'panoptic_map.png'}, "
           f"{out / 'graph' / 'contact_graph.png'}, {picture}; load {out / 'scene' / 'scene.urdf'} in RViz or "
           f"{out / 'scene' / 'scene.xml'} in MuJoCo")

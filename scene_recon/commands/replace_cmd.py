@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import time
 from pathlib import Path
+from typing import Any
 
 from scene_recon.commands.common import print_json
+
+log = logging.getLogger(__name__)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -80,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
     if not cad and not any(r.kind == "observed_mesh" for r in result.records):
         raise InputError(f"no object of {graph_file} could be replaced: the graph has no object nodes with "
                          "geometry (check `scene-recon graph` output and its nodes/ folder)")
+    picture = _before_after(graph, entities, out)
     if args.json:
         print_json(summary)
         return 0
@@ -90,5 +95,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"{r.name[:20]:20s} {r.class_name[:10]:10s} {r.kind:14s} {r.cad_id[:34]:34s} {ae_txt}")
     print(f"{len(result.scene)} objects in {summary['wall_s']:.2f} s ({result.rematched} matched); wrote {urdf}, "
           f"{exported.mjcf.name}, {exported.joint_states.name}, replacement.json"
-          + (f", {exported.glb.name}" if exported.glb else ""))
+          + (f", {exported.glb.name}" if exported.glb else "") + (f", {picture.name}" if picture else ""))
     return 0
+
+
+def _before_after(graph: Any, entities: dict[int, Any], out: Path) -> Path | None:
+    """``before_after.png``: the observed node meshes beside the replaced scene (same camera)."""
+    from scene_recon.synthetic.overview import render_scene_picture
+
+    if not (out / "scene.glb").is_file():
+        return None
+    before = {graph.nodes[i].name: e.mesh() for i, e in entities.items() if i in graph.nodes and len(e.faces)}
+    try:
+        return render_scene_picture(out, out / "before_after.png", before)
+    except (ValueError, OSError) as exc:  # a picture is a convenience: never fail the scene for it
+        log.warning("no before/after picture: %s", exc)
+        return None

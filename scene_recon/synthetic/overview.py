@@ -11,13 +11,14 @@ frustums, a start dot, an end square and a thin grey footprint of the path on th
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import cv2
 import numpy as np
+import trimesh
 
 from recon_core.entity import Entity
 from recon_core.frame import CameraIntrinsics
@@ -284,15 +285,17 @@ def render_map_picture(ents: list[Entity], poses: list[np.ndarray], path: Path) 
     return True
 
 
-def render_scene_picture(scene_dir: str | Path, path: str | Path, before: str | Path | None = None) -> Path:
-    """Bird's-eye picture of a replaced scene (``scene.glb`` of ``scene-recon replace``, walls left out):
-    one colour per object; with ``before`` (a picture of the same room: the map or the ground truth) the
-    two side by side."""
-    import trimesh
+def render_scene_picture(scene_dir: str | Path, path: str | Path,
+                         before: Mapping[str, trimesh.Trimesh] | None = None) -> Path:
+    """Bird's-eye picture of a replaced scene (``scene.glb`` of ``scene-recon replace``, walls left out).
 
+    With ``before`` (object name -> its observed mesh in the map frame: what stage 4 was given) the
+    observation and the interactive scene are drawn side by side from the same camera, each object
+    in the same colour on both sides, so a reader sees at once which object became which model.
+    """
     scene = trimesh.load(Path(scene_dir) / "scene.glb", force="scene")
-    items: list[RenderItem] = []
-    owners: dict[str, int] = {}
+    labels: dict[str, int] = {}
+    after: list[RenderItem] = []
     for node in scene.graph.nodes_geometry:
         transform, geom = scene.graph[node]
         mesh = scene.geometry.get(geom)
@@ -303,16 +306,19 @@ def render_scene_picture(scene_dir: str | Path, path: str | Path, before: str | 
         owner = str(node).split("__")[0]
         if owner.startswith("wall"):  # walls would hide the room from the bird's-eye camera
             continue
-        label = owners.setdefault(owner, len(owners) + 1)
-        items.append(RenderItem(mesh=posed, label=label, name=owner))
-    if not items:
+        after.append(RenderItem(mesh=posed, label=labels.setdefault(owner, len(labels) + 1), name=owner))
+    if not after:
         raise ValueError(f"{scene_dir}/scene.glb holds no geometry")
-    image = render_overview(items)
-    if before is not None and Path(before).is_file():
-        left = cv2.cvtColor(cv2.imread(str(before)), cv2.COLOR_BGR2RGB)
-        height = min(left.shape[0], image.shape[0])
-        resize = [cv2.resize(im, (int(im.shape[1] * height / im.shape[0]), height)) for im in (left, image)]
-        image = np.concatenate([resize[0], np.full((height, 8, 3), 255, np.uint8), resize[1]], axis=1)
+    observed = [RenderItem(mesh=m, label=labels.setdefault(n, len(labels) + 1), name=n)
+                for n, m in (before or {}).items() if len(m.faces) and not n.startswith("wall")]
+    lo = np.min([it.mesh.bounds[0] for it in [*after, *observed]], axis=0)
+    hi = np.max([it.mesh.bounds[1] for it in [*after, *observed]], axis=0)
+    room = RoomBounds(float(lo[0]), float(hi[0]) + 1e-6, float(lo[1]), float(hi[1]) + 1e-6,
+                      max(float(hi[2]), 1e-3))
+    image = render_overview(after, room=room)
+    if observed:
+        left = render_overview(observed, room=room)
+        image = np.concatenate([left, np.full((left.shape[0], 8, 3), 255, np.uint8), image], axis=1)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(out), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
