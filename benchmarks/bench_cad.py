@@ -75,7 +75,8 @@ def run_setting(graph, nodes, gt: GroundTruthScene, library: CadLibrary, method:
     export_scene(result.scene, out)
     export_s = time.perf_counter() - t1
     with contextlib.redirect_stdout(io.StringIO()):
-        figures = evaluate_scene(result.scene, {r.name: r.to_dict() for r in result.records}, gt, library, out)
+        figures = evaluate_scene(result.scene, {r.name: r.to_dict() for r in result.records}, gt, library, out,
+                                 graph)
     objects = sum(1 for r in result.records if r.kind == "cad")
     return {"replace_s": replace_s, "export_s": export_s, "cad_objects": objects,
             "per_object_s": replace_s / max(objects, 1), "physical_check_s": result.timings["physical_check_s"],

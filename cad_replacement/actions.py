@@ -90,7 +90,7 @@ def support_spots(obj: PlacedObject) -> list[SupportSpot]:
         pts = np.c_[s.polygon, np.full(len(s.polygon), s.height), np.ones(len(s.polygon))] @ t.T
         spots.append(SupportSpot(obj.name, s.link, float(pts[:, 2].mean()), pts[:, :2], s.clearance, s.enclosed))
     if not spots:  # a layout slab or a model without analytic surfaces: its top face
-        lo, hi = _posed_bounds(obj)
+        lo, hi = posed_bounds(obj)
         poly = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
         spots.append(SupportSpot(obj.name, obj.model.root_link, float(hi[2]), poly, None))
     return spots
@@ -106,7 +106,7 @@ def _posed_meshes(obj: PlacedObject) -> list[trimesh.Trimesh]:
     return out
 
 
-def _posed_bounds(obj: PlacedObject) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def posed_bounds(obj: PlacedObject) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     meshes = _posed_meshes(obj)
     if not meshes:
         return obj.pose[:3, 3].copy(), obj.pose[:3, 3].copy()
@@ -133,7 +133,7 @@ def copy_scene(scene: ReplacedScene) -> ReplacedScene:
 
 
 def _lowest_z(obj: PlacedObject) -> float:
-    return float(_posed_bounds(obj)[0][2])
+    return float(posed_bounds(obj)[0][2])
 
 
 def _shift(scene: ReplacedScene, obj: PlacedObject, transform: NDArray[np.float64]) -> None:
@@ -255,7 +255,7 @@ def _move(scene: ReplacedScene, action: SceneAction) -> None:
 
 def _free_spot(scene: ReplacedScene, obj: PlacedObject, spot: SupportSpot) -> NDArray[np.float64] | None:
     """An xy position on ``spot`` where ``obj``'s footprint fits and clears what already stands there."""
-    lo, hi = _posed_bounds(obj)
+    lo, hi = posed_bounds(obj)
     half = 0.5 * (hi[:2] - lo[:2])
     height = hi[2] - lo[2]
     if spot.clearance is not None and spot.clearance < height:
@@ -271,7 +271,7 @@ def _free_spot(scene: ReplacedScene, obj: PlacedObject, spot: SupportSpot) -> ND
     cand = cand[inside]
     occupants = [o for o in scene.objects if o.parent == spot.owner and o.name != obj.name]
     if len(cand) and occupants:
-        boxes = np.array([np.r_[_posed_bounds(o)[0][:2], _posed_bounds(o)[1][:2]] for o in occupants])
+        boxes = np.array([np.r_[posed_bounds(o)[0][:2], posed_bounds(o)[1][:2]] for o in occupants])
         clear = np.ones(len(cand), bool)
         for b in boxes:
             clear &= ~((cand[:, 0] + half[0] > b[0]) & (cand[:, 0] - half[0] < b[2])
@@ -294,7 +294,7 @@ def _reparent(scene: ReplacedScene, action: SceneAction) -> None:
         xy = _free_spot(scene, obj, spot)
         if xy is None:
             continue
-        lo, hi = _posed_bounds(obj)
+        lo, hi = posed_bounds(obj)
         delta = np.eye(4)
         delta[:2, 3] = xy - 0.5 * (lo[:2] + hi[:2])
         trial = copy_scene(scene)

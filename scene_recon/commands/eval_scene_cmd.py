@@ -29,13 +29,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from cad_replacement.cad.library import CadLibrary
+    from recon_core.contact_graph import ContactGraph
     from scene_recon.evaluation.scene_eval import evaluate_scene, scene_from_folder
     from scene_recon.synthetic.scene import GroundTruthScene
 
     library = CadLibrary(root=args.cad_dir, seeds_per_class=args.seeds_per_class)
     scene, records = scene_from_folder(args.scene, library)
     gt = GroundTruthScene.load(Path(args.ground_truth))
-    figures = evaluate_scene(scene, records, gt, library, None if args.no_physics else args.scene)
+    graph_file = Path(args.scene) / "contact_graph.json"
+    graph = ContactGraph.load(graph_file) if graph_file.is_file() else None
+    figures = evaluate_scene(scene, records, gt, library, None if args.no_physics else args.scene, graph)
     if args.json:
         print_json(figures)
         return 0
@@ -51,6 +54,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"max interpenetration {100 * figures['max_interpenetration_m']:.1f} cm "
           f"({figures['interpenetrating_pairs_over_1cm']} pairs over 1 cm); support gap max "
           f"{1000 * (figures['support_gap_max_m'] or 0.0):.1f} mm")
+    if "ged_after" in figures:
+        b, a = figures["ged_before"], figures["ged_after"]
+        print(f"contact graph GED against the ground truth: {b['total']} before, {a['total']} after replacement "
+              f"(wrong supports {b['wrong_support']} -> {a['wrong_support']})")
     for engine, rep in figures.get("physics", {}).items():
         print(f"{engine}: loaded {rep.get('loaded')}, still {rep.get('still_fraction')}")
     return 0

@@ -84,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
     if not cad and not any(r.kind == "observed_mesh" for r in result.records):
         raise InputError(f"no object of {graph_file} could be replaced: the graph has no object nodes with "
                          "geometry (check `scene-recon graph` output and its nodes/ folder)")
+    graph.save(out / "contact_graph.json")  # the input, so the folder can be scored on its own
     picture = _before_after(graph, entities, out)
     if args.json:
         print_json(summary)

@@ -11,6 +11,7 @@ MuJoCo (movable objects that stay within 2 cm over 2 s).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +27,9 @@ from cad_replacement.layout_models import box_model
 from cad_replacement.matching import candidate_classes
 from cad_replacement.physical_check import pair_penetrations
 from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
+from recon_core.contact_graph import ContactGraph, SupportEdge
 from recon_core.errors import InputError
+from recon_core.geometry.box import GravityBox
 from scene_recon.evaluation.cad_metrics import evaluate_object, summarize
 from scene_recon.synthetic.scene import GroundTruthScene
 
@@ -102,9 +105,51 @@ def scene_from_folder(folder: str | Path, library: CadLibrary) -> tuple[Replaced
     return ReplacedScene(data["scene"]["name"], objects), {r["name"]: r for r in data.get("objects_detail", [])}
 
 
+def _model_box(obj: PlacedObject) -> GravityBox:
+    """The placed CAD model's own box as a gravity box (a model lying on its side included)."""
+    f = obj.model.features
+    rot = obj.pose[:3, :3]
+    up = int(np.argmax(np.abs(rot[2])))  # the model axis that points (anti)parallel to gravity
+    hx, hy = (a for a in range(3) if a != up)
+    yaw = float(np.arctan2(rot[1, hx], rot[0, hx]))
+    size = np.maximum(np.array([f.box_size[hx], f.box_size[hy], f.box_size[up]]), 1e-6)
+    return GravityBox(rot @ f.box_center + obj.pose[:3, 3], size, yaw)
+
+
+def replaced_graph(graph: ContactGraph, scene: ReplacedScene) -> ContactGraph:
+    """The contact graph the replaced scene implies: the input graph's nodes that were placed, each
+    under the parent it rests on in the scene and with the box of its CAD model.
+
+    Comparing its GED to the input graph's (both against the ground truth) shows whether stage 4
+    kept the support structure it was given (the issue: "GED of the graph unchanged by replacement").
+    """
+    by_name = {n.name: nid for nid, n in graph.nodes.items()}
+    out = ContactGraph(name=graph.name, frame_id=graph.frame_id, nodes={graph.root_id: graph.nodes[graph.root_id]},
+                       root_id=graph.root_id)
+    placed = {o.name: o for o in scene if o.name in by_name}
+    for name, obj in placed.items():
+        nid = by_name[name]
+        node = graph.nodes[nid]
+        box = _model_box(obj) if obj.model.source != "box" else node.box
+        out.nodes[nid] = dataclasses.replace(node, box=box, box_unrefined=box)
+    for name, obj in placed.items():
+        nid = by_name[name]
+        parent = by_name.get(obj.parent) if obj.parent != MAP_ROOT else None
+        edge = graph.supports.get(nid)
+        parent_id = parent if parent in out.nodes else graph.root_id
+        if edge is not None:
+            out.supports[nid] = dataclasses.replace(edge, parent_id=parent_id)
+        else:
+            out.supports[nid] = SupportEdge(parent_id, nid)
+    out.proximal = [(a, b) for a, b in graph.proximal if a in out.nodes and b in out.nodes]
+    return out
+
+
 def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], ground_truth: GroundTruthScene,
-                   library: CadLibrary, physics_folder: str | Path | None = None) -> dict[str, Any]:
-    """Figures of one replaced scene (see module doc)."""
+                   library: CadLibrary, physics_folder: str | Path | None = None,
+                   graph: ContactGraph | None = None) -> dict[str, Any]:
+    """Figures of one replaced scene (see module doc); with the input ``graph``, its GED against the
+    ground truth before and after replacement too."""
     gt_objects = [e for e in ground_truth.entities if e.model_seed is not None]
     placed = [o for o in scene if o.cad_id and not o.cad_id.startswith(("box", "observed"))]
     centres_gt = np.array([e.box.center for e in gt_objects]) if gt_objects else np.zeros((0, 3))
@@ -155,6 +200,16 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
         "support_gap_median_m": float(np.median(gaps)) if gaps else None,
         "support_gap_max_m": float(np.max(gaps)) if gaps else None,
     }
+    if graph is not None:
+        from scene_recon.evaluation.graph_ground_truth import ground_truth_graph
+        from scene_recon.evaluation.graph_metrics.ged import graph_edit_distance
+
+        gt_graph = ground_truth_graph(ground_truth)
+        before = graph_edit_distance(graph, gt_graph)
+        after = graph_edit_distance(replaced_graph(graph, scene), gt_graph)
+        out["ged_before"] = before.to_dict()
+        out["ged_after"] = after.to_dict()
+        out["ged_unchanged"] = after.total == before.total and after.wrong_support == before.wrong_support
     if physics_folder is not None:
         from scene_recon.evaluation.physics import check_mujoco, check_pybullet
 
@@ -163,4 +218,4 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
     return out
 
 
-__all__ = ["MATCH_RADIUS_M", "evaluate_scene", "scene_from_folder"]
+__all__ = ["MATCH_RADIUS_M", "evaluate_scene", "replaced_graph", "scene_from_folder"]

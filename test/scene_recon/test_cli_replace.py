@@ -20,7 +20,7 @@ def test_replace_writes_a_loadable_scene_folder_and_eval_scene_scores_it(tmp_pat
     text = capsys.readouterr().out
     assert "before_after.png" in text
     for name in ("scene.urdf", "static.urdf", "scene.xml", "scene.glb", "joint_states.json", "replacement.json",
-                 "before_after.png"):
+                 "before_after.png", "contact_graph.json"):
         assert (out / name).is_file(), name
     urdf = yourdfpy.URDF.load(str(out / "scene.urdf"), load_meshes=False)
     assert urdf.validate() and urdf.base_link == "map"
@@ -32,6 +32,7 @@ def test_replace_writes_a_loadable_scene_folder_and_eval_scene_scores_it(tmp_pat
     assert figures["matched"] == figures["ground_truth_objects"] > 0
     assert figures["objects"]["pose_success"] >= 0.75
     assert figures["max_interpenetration_m"] <= 0.01
+    assert figures["ged_unchanged"] and figures["ged_after"]["total"] == figures["ged_before"]["total"]
     for engine in ("pybullet", "mujoco"):
         assert figures["physics"][engine]["loaded"]
         assert figures["physics"][engine]["still_fraction"] >= 0.9
