@@ -4,17 +4,21 @@ A recorder killed mid-write (power cut, full disk, ``kill -9``) leaves an MCAP f
 summary and footer, and often a bag folder without ``metadata.yaml``; rosbags refuses such files
 ("File end magic is invalid"). `SalvagedBag` scans the MCAP records from the start instead and
 stops at the first incomplete one (an incomplete last chunk is decompressed as far as it goes);
-for SQLite (``.db3``) it reads rows in insertion order until the database gives out. It mirrors the
-part of rosbags' ``AnyReader`` the loaders use: ``connections``, ``messages()``, ``deserialize()``.
+for SQLite (``.db3``) it reads rows in insertion order until the database gives out (a cut-off file
+is first copied to a temporary file whose header is made to match its length: SQLite refuses a file
+shorter than its header says). It mirrors the part of rosbags' ``AnyReader`` the loaders use:
+``connections``, ``messages()``, ``deserialize()``.
 """
 
 from __future__ import annotations
 
 import io
 import logging
+import shutil
 import sqlite3
 import struct
 import sys
+import tempfile
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -177,6 +181,8 @@ class SalvagedBag:
         #: Where each file stopped: "name: N of M bytes readable" lines.
         self.damage: list[str] = []
         self._ids: dict[tuple[str, int], int] = {}
+        self._tmp: tempfile.TemporaryDirectory | None = None
+        self._sqlite: dict[Path, Path] = {}  # a cut-off .db3 -> its readable temporary copy
         self._scan_all()
 
     # context manager and AnyReader look-alike -------------------------------------------------
@@ -184,7 +190,11 @@ class SalvagedBag:
         """Nothing to open: files are opened per pass."""
 
     def close(self) -> None:
-        """Nothing to close: files are closed after each pass."""
+        """Remove temporary copies (files themselves are closed after each pass)."""
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+            self._sqlite.clear()
 
     def __enter__(self) -> SalvagedBag:
         return self
@@ -226,10 +236,41 @@ class SalvagedBag:
             yield cid, (topic, scan.schemas.get(sid, "")), log_time, data if payload else b""
         self._note(path, scan.truncated, scan.complete_bytes, scan.size)
 
+    def _readable_sqlite(self, path: Path) -> Path:
+        """`path`, or a temporary copy cut to whole pages whose header page count matches its length."""
+        if path in self._sqlite:
+            return self._sqlite[path]
+        try:
+            with sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True) as db:
+                db.execute("SELECT count(*) FROM topics").fetchone()
+            self._sqlite[path] = path
+            return path
+        except sqlite3.Error:
+            pass
+        with path.open("rb") as fh:
+            header = fh.read(100)
+        if len(header) < 100 or not header.startswith(b"SQLite format 3\x00"):
+            self._sqlite[path] = path
+            return path
+        page = struct.unpack(">H", header[16:18])[0]
+        page = 65536 if page == 1 else page
+        pages = path.stat().st_size // page
+        if self._tmp is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="scene_recon_salvage_")
+        copy = Path(self._tmp.name) / f"{len(self._sqlite)}_{path.name}"
+        shutil.copyfile(path, copy)
+        with copy.open("r+b") as fh:
+            fh.truncate(pages * page)
+            fh.seek(28)
+            fh.write(struct.pack(">I", pages))
+        self._sqlite[path] = copy
+        return copy
+
     def _iter_sqlite(self, path: Path) -> Iterator[tuple[int, tuple[str, str], int, bytes]]:
         size = path.stat().st_size
+        readable = self._readable_sqlite(path)
         try:
-            db = sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True)
+            db = sqlite3.connect(f"file:{readable}?mode=ro&immutable=1", uri=True)
         except sqlite3.Error:
             self._note(path, True, 0, size)
             return
@@ -243,7 +284,7 @@ class SalvagedBag:
             damaged = True
         finally:
             db.close()
-        self._note(path, damaged, -1, size)
+        self._note(path, damaged or readable != path, -1, size)
 
     def _note(self, path: Path, truncated: bool, complete: int, size: int) -> None:
         if not truncated:
