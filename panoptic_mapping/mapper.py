@@ -34,6 +34,9 @@ log = logging.getLogger(__name__)
 MAP_FORMAT_VERSION = 1
 #: Id of the entity holding reconstructed surface no entity claims (class -1, "unknown").
 UNKNOWN_ENTITY_ID = 0
+#: Farthest a camera may be from the map's origin (m). Past it float32 points lose centimetres
+#: (ulp 1 cm at 131 km) and block keys overflow (2^20 blocks of 16 cm: 167 km): recentre the map.
+MAX_LOCAL_DISTANCE_M = 100_000.0
 
 
 @dataclass
@@ -69,6 +72,24 @@ class PanopticMapper:
         self._entity_cache: tuple | None = None
         self._last_key_pose: np.ndarray | None = None
         self._last_key_time: int | None = None
+        #: Position of this map's origin in the input's map frame (m, float64): poses are integrated
+        #: relative to it, and every output (voxels, meshes, entities) is in these local coordinates.
+        #: Non-zero for recordings far from their frame's origin (UTM-like coordinates), see `recentre`.
+        self.origin_offset = np.zeros(3)
+
+    def recentre(self, offset: np.ndarray) -> None:
+        """Integrate future poses relative to `offset` (before the first frame, or when resuming)."""
+        if self.frames_integrated and not np.allclose(offset, self.origin_offset):
+            raise ValueError("the map origin can only be chosen before the first frame is integrated")
+        self.origin_offset = np.asarray(offset, dtype=np.float64).reshape(3).copy()
+
+    def local_pose(self, pose: np.ndarray) -> np.ndarray:
+        """Camera-to-map `pose` expressed relative to the map's origin (float64)."""
+        if not np.any(self.origin_offset):
+            return pose
+        out = np.array(pose, dtype=np.float64)
+        out[:3, 3] -= self.origin_offset
+        return out
 
     @property
     def full(self) -> bool:
@@ -96,22 +117,26 @@ class PanopticMapper:
         """Integrate one posed frame; `masks` (full-resolution panoptic masks) only on keyframes."""
         if frame.pose is None:
             raise ValueError("the mapper needs a camera pose for every frame")
+        pose = self.local_pose(frame.pose)
+        dist = float(np.linalg.norm(pose[:3, 3]))
+        if dist > MAX_LOCAL_DISTANCE_M:
+            raise ValueError(f"camera is {dist / 1000:.1f} km from the map origin: float32 voxels collapse that far; "
+                             "recentre the map on the first pose (PanopticMapper.recentre, done by map_recording)")
         t0 = time.perf_counter()
         cfg = self.config
         ds = cfg.downsample
-        depth = np.asarray(downsample_depth(frame.depth, ds), np.float32)  # max depth: applied by integration
+        # only readings within [min_depth_m, max_depth_m] allocate blocks or carry labels
+        depth = self.tsdf.in_range(np.asarray(downsample_depth(frame.depth, ds), np.float32))
         intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
         area = 1.0 / (ds * ds)
         t = {}
         n_label = cfg.keyframes.label_every_n_frames
         if masks is None and (n_label <= 0 or self.frames_integrated % n_label):
             # geometry only: labels come from keyframes (the extraction fills the fringe)
-            self.tsdf.integrate_depth(depth, intr.matrix, frame.pose)
+            self.tsdf.integrate_depth(depth, intr.matrix, pose)
             self.frames_integrated += 1
             t1 = time.perf_counter()
             return FrameStats(False, 0, 0, 0, 0, {"integration": (t1 - t0) * 1000})
-        if cfg.tsdf.min_depth_m > 0:  # too-near readings carry no usable label geometry
-            depth = np.where(depth >= cfg.tsdf.min_depth_m, depth, np.float32(0))
         geo, points, _normals = segment_depth(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
         t["depth_segmentation"] = time.perf_counter()
         if masks is not None:
@@ -122,7 +147,7 @@ class PanopticMapper:
         segs = fuse(geo, masks, points, cfg.fusion, full=self.full, min_points=min_pts)
         t["fusion"] = time.perf_counter()
         # (N, 3) @ (3, 3) in numpy is slow for this shape; cv2.transform is a tight C loop
-        world = cv2.transform(points.reshape(-1, 1, 3), frame.pose[:3, :].astype(np.float32)).reshape(-1, 3)
+        world = cv2.transform(points.reshape(-1, 1, 3), pose[:3, :].astype(np.float32)).reshape(-1, 3)
         segmented = bool(masks.labels.any())
         stride = max(1, cfg.association.pixel_stride)
         grid = np.zeros(depth.shape, bool)
@@ -143,7 +168,7 @@ class PanopticMapper:
         self.tsdf.integrate_labels(world[has], pix_labels[has], lut)
         for label in np.unique(pix_labels[has]).tolist():
             self.counts.last_update[int(label)] = self.frames_integrated
-        self.tsdf.integrate_depth(depth, intr.matrix, frame.pose)
+        self.tsdf.integrate_depth(depth, intr.matrix, pose)
         t["integration"] = time.perf_counter()
         self.frames_integrated += 1
         every = cfg.regularization.every_n_frames
@@ -431,7 +456,9 @@ class PanopticMapper:
         np.savez_compressed(folder / "map.npz", **arrays)  # type: ignore[arg-type]  # numpy's stub types **kwds as bool
         meta = {"format_version": MAP_FORMAT_VERSION, "config": asdict(self.config),
                 "frames_integrated": self.frames_integrated, "keyframes": self.keyframes,
-                "classes": {str(k): asdict(v) for k, v in self.classes.items()}}
+                "classes": {str(k): asdict(v) for k, v in self.classes.items()},
+                # input map frame = these coordinates + origin_offset_m (non-zero for recentred maps)
+                "origin_offset_m": [float(v) for v in self.origin_offset]}
         (folder / "map.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
         return folder / "map.npz"
 
@@ -456,4 +483,5 @@ class PanopticMapper:
         mapper.merge_votes = {(int(a), int(b)): int(n) for a, b, n in arrays["merge_votes"]}
         mapper.frames_integrated = int(meta.get("frames_integrated", 0))
         mapper.keyframes = int(meta.get("keyframes", 0))
+        mapper.origin_offset = np.asarray(meta.get("origin_offset_m", [0.0, 0.0, 0.0]), dtype=np.float64)
         return mapper

@@ -7,6 +7,8 @@ itself (asynchronous segmentation service), but with the same gating and convers
 from __future__ import annotations
 
 import json
+import logging
+import re
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -16,11 +18,26 @@ import numpy as np
 
 from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.dataio import DataInputConfig
+from panoptic_mapping.dataio.diagnose import explain_empty
 from panoptic_mapping.dataio.registry import open_dataset
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
 from panoptic_mapping.mapper import ClassMeta, PanopticMapper
 from recon_core.classes import ClassTable, load_class_table
 from recon_core.entity import Entity, save_entities
+from recon_core.errors import DatasetError, InputError
+
+log = logging.getLogger(__name__)
+
+#: A recording whose first pose is farther than this from its frame's origin is mapped relative to
+#: that pose (rounded to whole metres), so 2 cm voxels keep their precision in float32.
+RECENTRE_BEYOND_M = 1000.0
+#: Past this the coordinates are most likely geodetic (UTM) or in the wrong unit: warned about.
+WARN_BEYOND_M = 1_000_000.0
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+class MappingFailed(InputError):
+    """Every frame of a recording failed in the mapper."""
 
 
 def class_metas(table: ClassTable | None = None) -> dict[int, ClassMeta]:
@@ -51,6 +68,13 @@ class MappingRun:
     read_s: float = 0.0
     stage_ms: dict[str, float] = field(default_factory=dict)
     skipped: dict[str, int] = field(default_factory=dict)
+    #: Frames the mapper raised on (logged, skipped; the run goes on) and their first errors.
+    failed_frames: int = 0
+    failures: dict[str, int] = field(default_factory=dict)
+    #: Map-frame position of the map's origin (non-zero when the recording was recentred).
+    origin_offset_m: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    #: The recording ended early (truncated bag); frames before the cut were mapped.
+    truncated: bool = False
     poses: list[np.ndarray] = field(default_factory=list)
 
     @property
@@ -66,6 +90,34 @@ class MappingRun:
         return d
 
 
+def _choose_origin(mapper: PanopticMapper, pose: np.ndarray, recentre_beyond_m: float) -> None:
+    """Recentre a fresh map on the first pose when that pose is far from its frame's origin."""
+    t = np.asarray(pose, dtype=np.float64)[:3, 3]
+    dist = float(np.linalg.norm(t))
+    if dist > WARN_BEYOND_M:
+        log.warning("the first camera pose is %.0f km from the map frame's origin: geodetic (UTM-like) coordinates "
+                    "or a wrong unit? The map is recentred on it; origin_offset_m in map.json maps outputs back",
+                    dist / 1000)
+    if mapper.frames_integrated or np.any(mapper.origin_offset) or not (0 < recentre_beyond_m < dist):
+        return
+    mapper.recentre(np.round(t))  # whole metres: the local voxel grid stays aligned with the input frame's
+    log.info("map recentred on the first pose: origin_offset_m = %s", mapper.origin_offset.tolist())
+
+
+def _integrate_or_skip(mapper: PanopticMapper, frame: Any, masks: PanopticMasks | None, run: MappingRun) -> Any:
+    """`mapper.integrate`, with a failing frame logged and counted instead of ending the run."""
+    try:
+        return mapper.integrate(frame, masks)
+    except (MemoryError, KeyboardInterrupt):
+        raise
+    except Exception as exc:  # Open3D raises RuntimeError; a bad frame must not end a long recording
+        msg = _ANSI.sub("", str(exc)).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
+        log.warning("frame %d (t=%.3f s) not integrated: %s", frame.index, frame.timestamp_ns * 1e-9, msg)
+        run.failed_frames += 1
+        run.failures[msg] = run.failures.get(msg, 0) + 1
+        return None
+
+
 def map_recording(
     source: str | Path,
     segmenter: Any,
@@ -73,8 +125,15 @@ def map_recording(
     data_config: DataInputConfig | None = None,
     progress: bool = True,
     mapper: PanopticMapper | None = None,
+    recentre_beyond_m: float = RECENTRE_BEYOND_M,
 ) -> tuple[PanopticMapper, MappingRun]:
-    """Integrate every posed frame of `source`; segment keyframes only (when gating is enabled)."""
+    """Integrate every posed frame of `source`; segment keyframes only (when gating is enabled).
+
+    A frame the mapper fails on is logged, counted (`run.failed_frames`) and skipped. A recording
+    whose first pose lies farther than `recentre_beyond_m` from the origin is mapped relative to that
+    pose (`mapper.origin_offset`; 0 disables). Raises DatasetError, saying why and what to do, when
+    no frame could be mapped.
+    """
     from tqdm import tqdm
 
     mapper = mapper or PanopticMapper(mapper_config, class_metas())
@@ -91,6 +150,10 @@ def map_recording(
             except StopIteration:
                 break
             run.read_s += time.perf_counter() - t0
+            if frame.pose is None:  # require_pose=False loaders: nothing to integrate
+                continue
+            if not run.frames and not run.failed_frames:
+                _choose_origin(mapper, frame.pose, recentre_beyond_m)
             masks = None
             if segmenter is not None and mapper.is_keyframe(frame):
                 mapper.mark_keyframe(frame)
@@ -102,15 +165,27 @@ def map_recording(
             elif segmenter is None and mapper.is_keyframe(frame):
                 mapper.mark_keyframe(frame)
             t2 = time.perf_counter()
-            stats = mapper.integrate(frame, masks)
+            stats = _integrate_or_skip(mapper, frame, masks, run)
             run.mapper_s += time.perf_counter() - t2
+            bar.update(1)
+            if stats is None:
+                continue
             for k, v in stats.timings_ms.items():
                 run.stage_ms[k] = run.stage_ms.get(k, 0.0) + v
             run.frames += 1
-            run.poses.append(frame.pose)
-            bar.update(1)
+            run.poses.append(mapper.local_pose(frame.pose))
         bar.close()
         run.skipped = {k: v for k, v in loader.skips.as_dict().items() if v}
+        if run.failed_frames:
+            run.skipped["mapper_failed"] = run.failed_frames
+        run.truncated = bool(getattr(loader, "truncated", False))
+        if not run.frames:
+            if run.failed_frames:
+                first = max(run.failures.items(), key=lambda kv: kv[1])[0]
+                raise MappingFailed(f"{source}: all {run.failed_frames} frames failed in the mapper "
+                                    f"(most often: {first}); run with -v for each frame's error")
+            raise DatasetError(explain_empty(loader, source))
+    run.origin_offset_m = [float(v) for v in mapper.origin_offset]
     run.keyframes = mapper.keyframes
     run.wall_s = time.perf_counter() - t_start
     return mapper, run
@@ -131,6 +206,9 @@ def write_map_outputs(out: str | Path, mapper: PanopticMapper, run: MappingRun,
         per_class[e.class_name] = per_class.get(e.class_name, 0) + 1
     summary = {
         "run": run.summary(), "mode": mapper.config.mode, "entities": len(ents),
+        "panoptic_entities": sum(1 for e in ents if e.class_id != BACKGROUND),
+        "origin_offset_m": [float(v) for v in mapper.origin_offset],
+        "depth_range_m": [mapper.config.tsdf.min_depth_m, mapper.config.tsdf.max_depth_m],
         "entities_per_class": dict(sorted(per_class.items())), "extract_s": round(extract_s, 3),
         "map_blocks": mapper.tsdf.num_blocks, "map_memory_mb": round(mapper.tsdf.memory_bytes() / 2**20, 1),
         "global_segments": mapper.counts.next_label - 1, **(extra or {}),

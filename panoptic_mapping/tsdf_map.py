@@ -38,16 +38,38 @@ class LabeledTSDF:
         self.label_conf_max = 64
 
     # ------------------------------------------------------------------ geometry
-    def integrate_depth(self, depth: np.ndarray, intrinsic: np.ndarray, pose: np.ndarray) -> None:
-        """Fuse one depth image (metres, 0 = invalid) seen from camera-to-map `pose`."""
+    def in_range(self, depth: np.ndarray) -> np.ndarray:
+        """`depth` with readings outside [min_depth_m, max_depth_m] set to 0 (float32)."""
+        depth = np.asarray(depth, np.float32)
+        lo, hi = float(self.cfg.min_depth_m), float(self.cfg.max_depth_m)
+        bad = depth > hi if hi > 0 else np.zeros(depth.shape, bool)
+        if lo > 0:
+            bad |= depth < lo
+        return np.where(bad, np.float32(0), depth) if bad.any() else depth
+
+    def integrate_depth(self, depth: np.ndarray, intrinsic: np.ndarray, pose: np.ndarray) -> int:
+        """Fuse one depth image (metres, 0 = invalid) seen from camera-to-map `pose`.
+
+        Only readings within [min_depth_m, max_depth_m] allocate and update blocks. Returns the number
+        of blocks touched (0 when no reading is in range: nothing is integrated, nothing raised).
+        """
+        depth = self.in_range(depth)
+        if not np.any(depth > 0):
+            return 0
         dt = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(depth, np.float32)))
         k = o3c.Tensor(np.asarray(intrinsic, np.float64))
         e = o3c.Tensor(np.linalg.inv(np.asarray(pose, np.float64)))
-        blocks = self.vbg.compute_unique_block_coordinates(dt, k, e, 1.0, float(self.cfg.max_depth_m),
-                                                           float(self.cfg.truncation_voxels))
+        try:
+            blocks = self.vbg.compute_unique_block_coordinates(dt, k, e, 1.0, float(self.cfg.max_depth_m),
+                                                               float(self.cfg.truncation_voxels))
+        except RuntimeError as exc:  # Open3D raises "No block is touched" instead of returning none
+            if "No block is touched" in str(exc):
+                return 0
+            raise
         if blocks.shape[0] == 0:
-            return
+            return 0
         self.vbg.integrate(blocks, dt, k, e, 1.0, float(self.cfg.max_depth_m), float(self.cfg.truncation_voxels))
+        return int(blocks.shape[0])
 
     # ------------------------------------------------------------------ voxel lookup
     def _flat_indices(self, points: np.ndarray, activate: bool = False) -> np.ndarray:

@@ -43,5 +43,7 @@ class DataInputConfig(Settings):
     max_frames: int = 0
     #: Override camera intrinsics [fx, fy, cx, cy] (folders without calibration, bags without info).
     intrinsics: list[float] = field(default_factory=list)
+    #: Intrinsics from a file instead: 3x3 / 4x4 matrix text (3DMatch, ScanNet) or YAML with fx, fy, cx, cy.
+    intrinsics_file: str = ""
     #: Folder datasets: depth PNG units per metre (TUM: 5000, 7-Scenes: 1000); 0 = dataset default.
     depth_scale: float = 0.0

@@ -12,7 +12,7 @@ from recon_core.frame import DatasetError
 
 #: Color encodings accepted and their (channels, order) after decoding to RGB.
 COLOR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8")
-#: Depth encodings accepted: 16UC1 / mono16 in millimetres, 32FC1 in metres.
+#: Depth encodings accepted: 16UC1 / mono16 in millimetres (0 and 65535 invalid), 32FC1 in metres.
 DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
 
 _CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}
@@ -65,7 +65,8 @@ def decode_color(
 def decode_depth(
     encoding: str, height: int, width: int, step: int, data: object, is_bigendian: int = 0
 ) -> np.ndarray:
-    """Return (H, W) float32 metres; invalid readings keep their value (see `sanitize_depth`)."""
+    """Return (H, W) float32 metres. 16-bit: 0 and 65535 -> 0 (invalid); 32FC1: NaN / inf / negative
+    readings keep their value (see `sanitize_depth`)."""
     dtype: np.dtype
     if encoding in ("16UC1", "mono16"):
         dtype = np.dtype(">u2" if is_bigendian else "<u2")
@@ -79,7 +80,8 @@ def decode_depth(
     rows = _rows(data, height, width, step, width * dtype.itemsize, f"depth image ({encoding})")
     raw = np.ascontiguousarray(rows).view(dtype).reshape(height, width)
     if dtype.kind == "u":
-        return raw.astype(np.float32) * np.float32(0.001)
+        # 0 and 65535 (the sensors' "no reading" / saturation marker, not 65.5 m) are invalid
+        return np.where(raw == 0xFFFF, np.float32(0), raw.astype(np.float32) * np.float32(0.001))
     return raw.astype(np.float32)
 
 
@@ -106,13 +108,14 @@ def encode_color(rgb: np.ndarray, encoding: str = "rgb8") -> tuple[str, int, int
 
 
 def encode_depth(depth_m: np.ndarray, encoding: str = "16UC1") -> tuple[str, int, int, int, np.ndarray]:
-    """(encoding, height, width, step, data) for float metres; 16UC1 rounds to mm, 0 = invalid."""
+    """(encoding, height, width, step, data) for float metres; 16UC1 rounds to mm, 0 = invalid (so are
+    readings past 65.534 m: 65535 means "no reading" to the decoder)."""
     depth_m = np.asarray(depth_m, dtype=np.float32)
     h, w = depth_m.shape
     if encoding == "16UC1":
-        valid = np.isfinite(depth_m) & (depth_m > 0)
-        mm = np.where(valid, np.round(depth_m * 1000.0), 0.0)
-        img = np.clip(mm, 0, 65535).astype("<u2")
+        mm = np.round(depth_m * np.float32(1000.0))
+        valid = np.isfinite(mm) & (mm > 0) & (mm < 0xFFFF)
+        img = np.where(valid, mm, 0.0).astype("<u2")
     elif encoding == "32FC1":
         img = depth_m.astype("<f4")
     else:

@@ -1,7 +1,9 @@
-"""What a bag or frame folder holds: topics, counts, rates, resolution, duration and pose coverage."""
+"""What a bag or frame folder holds: topics, counts, rates, resolution, duration, pose coverage, and
+how many frames would be mapped, with the reasons the others would be skipped."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -9,6 +11,7 @@ import numpy as np
 
 from panoptic_mapping.dataio.bag import IMAGE_TYPE, INFO_TYPE, RosbagLoader
 from panoptic_mapping.dataio.config import DataInputConfig
+from panoptic_mapping.dataio.diagnose import explain_empty, pose_hint
 from panoptic_mapping.dataio.folders import _read_image
 from panoptic_mapping.dataio.registry import detect_format, open_dataset
 from panoptic_mapping.dataio.transforms import TransformLookupError
@@ -22,16 +25,33 @@ def _rate(times_ns: list[int]) -> float:
     return (len(times_ns) - 1) / span if span > 0 else 0.0
 
 
-def inspect_dataset(path: str | Path, config: DataInputConfig | None = None) -> dict[str, Any]:
-    """Summary of `path` as plain data (printed by `scene-recon inspect`, `--json` for machines)."""
+def inspect_dataset(path: str | Path, config: DataInputConfig | None = None, quick: bool = False) -> dict[str, Any]:
+    """Summary of `path` as plain data (printed by `scene-recon inspect`, `--json` for machines).
+
+    Every frame is decoded once (as `scene-recon map` would read it) to count the frames that would
+    be mapped and why the others would not; `quick` only pairs and poses them (bags) or lists them
+    (folders).
+    """
     config = config or DataInputConfig()
     fmt = detect_format(path)
     if fmt == "rosbag2":
-        return _inspect_bag(Path(path), config)
-    return _inspect_folder(Path(path), config, fmt)
+        return _inspect_bag(Path(path), config, quick)
+    return _inspect_folder(Path(path), config, fmt, quick)
 
 
-def _inspect_bag(path: Path, config: DataInputConfig) -> dict[str, Any]:
+def _full_pass(loader: Any) -> int:
+    """Iterate `loader` (pose not required), return the frames that have a pose; skip counters fill up."""
+    usable = 0
+    for frame in loader:
+        usable += frame.pose is not None
+    return usable
+
+
+def _reasons(loader: Any) -> dict[str, int]:
+    return dict(loader.skips.reasons.most_common(10))
+
+
+def _inspect_bag(path: Path, config: DataInputConfig, quick: bool) -> dict[str, Any]:
     # Topic selection may fail (e.g. no depth): still report the topics, then the error.
     try:
         loader = RosbagLoader(path, config)
@@ -53,8 +73,8 @@ def _inspect_bag(path: Path, config: DataInputConfig) -> dict[str, Any]:
                 log_times[conn.topic].append(t)
                 if conn.topic not in first and conn.msgtype in (IMAGE_TYPE, INFO_TYPE):
                     first[conn.topic] = reader.deserialize(raw, conn.msgtype)
-        except Exception as exc:
-            raise DatasetError(f"{path}: bag is truncated or corrupt: {exc}") from exc
+        except Exception as exc:  # count what comes before the damage
+            loader._mark_truncated(f"breaks off ({exc})")
         topics = []
         for c in sorted(reader.connections, key=lambda c: c.topic):
             entry: dict[str, Any] = {
@@ -70,23 +90,31 @@ def _inspect_bag(path: Path, config: DataInputConfig) -> dict[str, Any]:
             if role:
                 entry["role"] = role
             topics.append(entry)
-        pairs = posed = 0
         camera_frame = config.camera_frame or (first[loader.topics["color"]].header.frame_id
                                                if loader.topics["color"] in first else "")
-        for stamp, _c, _d, _l in loader.iter_pairs():
-            pairs += 1
-            try:
-                loader.pose_at(camera_frame, stamp)
-                posed += 1
-            except TransformLookupError:
-                pass
+        if quick:
+            stamps = [stamp for stamp, _c, _d, _l in loader.iter_pairs()]
+            pairs, posed = len(stamps), 0
+            for stamp in stamps:
+                try:
+                    loader.pose_at(camera_frame, stamp)
+                    posed += 1
+                except TransformLookupError:
+                    loader.skips.no_pose += 1
+            usable = posed
+        else:
+            loader.config = dataclasses.replace(config, require_pose=False, start=0, stride=1, max_frames=0)
+            usable = _full_pass(loader)
+            pairs = loader.pairs
+            posed = pairs - loader.skips.no_pose
         starts = [min(v) for v in log_times.values() if v]
         ends = [max(v) for v in log_times.values() if v]
         color = first.get(loader.topics["color"])
-        return {
+        depth = first.get(loader.topics["depth"])
+        info: dict[str, Any] = {
             "path": str(path),
             "format": "rosbag2",
-            "storage": "mcap" if any(path.glob("*.mcap")) or path.suffix == ".mcap" else "sqlite3",
+            "storage": "mcap" if path.suffix == ".mcap" or (path.is_dir() and any(path.glob("*.mcap"))) else "sqlite3",
             "duration_s": round((max(ends) - min(starts)) * 1e-9, 3) if starts else 0.0,
             "start_time_s": round(min(starts) * 1e-9, 6) if starts else 0.0,
             "messages": sum(len(v) for v in log_times.values()),
@@ -98,20 +126,42 @@ def _inspect_bag(path: Path, config: DataInputConfig) -> dict[str, Any]:
             "camera_frame": camera_frame,
             "map_frame": config.map_frame,
             "tf_frames": sorted(loader.tf.frames),
+            "tf_roots": loader.tf.roots(),
             "posed_frames": posed,
             "pose_coverage": round(posed / pairs, 4) if pairs else 0.0,
+            "usable_frames": usable,
+            "checked": "pairing and poses only" if quick else "every frame decoded",
             "skipped": loader.skips.as_dict(),
+            "skip_reasons": _reasons(loader),
+            "truncated": loader.truncated,
         }
+        if depth is not None and color is not None and (depth.width, depth.height) != (color.width, color.height):
+            info["depth_resolution"] = [int(depth.width), int(depth.height)]
+            info["resampled_frames"] = loader.resampled_frames
+        if loader.truncated:
+            info["damage"] = list(loader.damage)
+        if posed < pairs:
+            info["pose_hint"] = loader.pose_hint(camera_frame)
+        if not usable:
+            info["why_no_frames"] = explain_empty(loader)
+        return info
 
 
-def _inspect_folder(path: Path, config: DataInputConfig, fmt: str) -> dict[str, Any]:
+def _inspect_folder(path: Path, config: DataInputConfig, fmt: str, quick: bool) -> dict[str, Any]:
     loader = open_dataset(path, config)
     entries = loader.entries
     stamps = np.array([e[0] for e in entries], dtype=np.int64)
     posed = sum(1 for e in entries if e[3] is not None)
     first = _read_image(entries[0][1], depth=False) if entries else None
+    first_depth = _read_image(entries[0][2], depth=True) if entries else None
     duration = (stamps[-1] - stamps[0]) * 1e-9 if len(stamps) > 1 else 0.0
-    return {
+    if quick:
+        usable = posed
+        loader.skips.no_pose = len(entries) - posed
+    else:
+        loader.config = dataclasses.replace(config, require_pose=False, start=0, stride=1, max_frames=0)
+        usable = _full_pass(loader)
+    info: dict[str, Any] = {
         "path": str(path),
         "format": fmt,
         "frames": len(entries),
@@ -119,8 +169,22 @@ def _inspect_folder(path: Path, config: DataInputConfig, fmt: str) -> dict[str, 
         "duration_s": round(float(duration), 3),
         "frame_rate_hz": round((len(stamps) - 1) / duration, 3) if duration > 0 else 0.0,
         "intrinsics": list(loader._k),
+        "intrinsics_source": loader.intrinsics_source,
         "depth_scale": loader.depth_scale,
         "posed_frames": posed,
         "pose_coverage": round(posed / len(entries), 4) if entries else 0.0,
+        "usable_frames": usable,
+        "checked": "listing only" if quick else "every frame decoded",
         "skipped": loader.skips.as_dict(),
+        "skip_reasons": _reasons(loader),
     }
+    if loader._k_depth is not None:
+        info["depth_intrinsics"] = list(loader._k_depth)
+    if first_depth is not None and first is not None and first_depth.shape[:2] != first.shape[:2]:
+        info["depth_resolution"] = [int(first_depth.shape[1]), int(first_depth.shape[0])]
+        info["resampled_frames"] = loader.resampled_frames
+    if posed < len(entries):
+        info["pose_hint"] = pose_hint(loader)
+    if not usable:
+        info["why_no_frames"] = explain_empty(loader)
+    return info

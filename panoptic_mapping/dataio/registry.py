@@ -8,7 +8,14 @@ from typing import Any
 
 from panoptic_mapping.dataio.bag import RosbagLoader, is_bag
 from panoptic_mapping.dataio.config import DataInputConfig
-from panoptic_mapping.dataio.folders import SevenScenesLoader, TumLoader, is_seven_scenes, is_tum
+from panoptic_mapping.dataio.folders import (
+    ScanNetLoader,
+    SevenScenesLoader,
+    TumLoader,
+    is_scannet,
+    is_seven_scenes,
+    is_tum,
+)
 from recon_core.frame import DatasetError
 
 #: (name, detector, loader class), tried in order.
@@ -16,6 +23,7 @@ LOADERS: list[tuple[str, Callable[[Path], bool], type]] = [
     ("rosbag2", is_bag, RosbagLoader),
     ("tum", is_tum, TumLoader),
     ("7scenes", is_seven_scenes, SevenScenesLoader),
+    ("scannet", is_scannet, ScanNetLoader),
 ]
 
 
@@ -29,7 +37,9 @@ def detect_format(path: str | Path) -> str:
             return name
     raise DatasetError(
         f"{path} is not a recognised RGB-D source. Expected a ROS 2 bag (.mcap/.db3 file or a folder with "
-        "metadata.yaml), a TUM folder (rgb.txt + depth.txt) or a 7-Scenes folder (frame-XXXXXX.color.png)"
+        "metadata.yaml or .mcap/.db3 files), a TUM folder (rgb.txt + depth.txt), a 7-Scenes / 3DMatch folder "
+        "(frame-XXXXXX.color.png, also in rgbd-frames/ or seq-XX/) or a ScanNet export (color/, depth/, pose/, "
+        "intrinsic/)"
     )
 
 

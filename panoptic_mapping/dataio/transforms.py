@@ -228,6 +228,14 @@ class TransformBuffer:
             path.append(nxt)
         return path
 
+    def roots(self) -> list[str]:
+        """Frames without a parent (the top of each TF tree), sorted."""
+        return sorted(f for f in self.frames if f not in self._parent)
+
+    def root_of(self, frame: str) -> str:
+        """Top of the TF tree `frame` belongs to (`frame` itself when it has no parent)."""
+        return self._path_to_root(frame.lstrip("/"))[-1]
+
     def can_connect(self, target: str, source: str) -> bool:
         target, source = target.lstrip("/"), source.lstrip("/")
         return bool(set(self._path_to_root(target)) & set(self._path_to_root(source)))

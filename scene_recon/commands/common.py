@@ -8,7 +8,18 @@ import sys
 from typing import Any
 
 from panoptic_mapping.dataio import DataInputConfig
+from panoptic_mapping.dataio.intrinsics import parse_intrinsics_option
 from recon_core.config import CONFIG_DIR, load_config
+
+#: (option, dest, config key) of the data options that take a value (forwarded by `run` to `map`).
+_VALUE_OPTIONS = (
+    ("--data-config", "data_config", ""), ("--color-topic", "color_topic", "topics.color"),
+    ("--depth-topic", "depth_topic", "topics.depth"),
+    ("--camera-info-topic", "camera_info_topic", "topics.camera_info"),
+    ("--labels-topic", "labels_topic", "topics.labels"), ("--map-frame", "map_frame", "map_frame"),
+    ("--camera-frame", "camera_frame", "camera_frame"), ("--max-frames", "max_frames", "max_frames"),
+    ("--stride", "stride", "stride"), ("--depth-scale", "depth_scale", "depth_scale"),
+)
 
 
 def add_data_options(p: argparse.ArgumentParser) -> None:
@@ -20,25 +31,39 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--labels-topic", help="ground-truth label image topic (32SC1), optional")
     g.add_argument("--map-frame", help="gravity-aligned fixed frame for camera poses (default: map)")
     g.add_argument("--camera-frame", help="camera optical frame (default: the color image's frame_id)")
-    g.add_argument("--intrinsics", nargs=4, type=float, metavar=("FX", "FY", "CX", "CY"),
-                   help="override camera intrinsics")
+    g.add_argument("--intrinsics", metavar="FX,FY,CX,CY|FILE",
+                   help="override camera intrinsics: fx,fy,cx,cy (one argument, e.g. 570.3,570.3,320,240) or a "
+                   "file: 3x3/4x4 matrix text (camera-intrinsics.txt, intrinsic_color.txt) or YAML with fx, fy, cx, cy")
+    g.add_argument("--depth-scale", type=float, metavar="UNITS",
+                   help="frame folders: depth PNG units per metre (default: TUM 5000, 7-Scenes/ScanNet 1000)")
     g.add_argument("--max-frames", type=int, help="read at most this many frames")
     g.add_argument("--stride", type=int, help="read every N-th frame")
 
 
 def data_config_from_args(args: argparse.Namespace) -> DataInputConfig:
     overrides: dict[str, Any] = {}
-    for opt, key in (("color_topic", "topics.color"), ("depth_topic", "topics.depth"),
-                     ("camera_info_topic", "topics.camera_info"), ("labels_topic", "topics.labels"),
-                     ("map_frame", "map_frame"), ("camera_frame", "camera_frame"),
-                     ("max_frames", "max_frames"), ("stride", "stride")):
-        value = getattr(args, opt, None)
-        if value is not None:
+    for _opt, dest, key in _VALUE_OPTIONS:
+        value = getattr(args, dest, None)
+        if value is not None and key:
             overrides[key] = value
     if getattr(args, "intrinsics", None):
-        overrides["intrinsics"] = list(args.intrinsics)
+        values, file = parse_intrinsics_option(args.intrinsics)
+        overrides["intrinsics"] = values
+        overrides["intrinsics_file"] = file
     path = args.data_config or (CONFIG_DIR / "data.yaml" if (CONFIG_DIR / "data.yaml").is_file() else None)
     return load_config(DataInputConfig, path, overrides)
+
+
+def data_options_argv(args: argparse.Namespace) -> list[str]:
+    """The data options given on this command line, as arguments for another subcommand."""
+    argv: list[str] = []
+    for opt, dest, _key in _VALUE_OPTIONS:
+        value = getattr(args, dest, None)
+        if value is not None:
+            argv += [opt, str(value)]
+    if getattr(args, "intrinsics", None):
+        argv += ["--intrinsics", args.intrinsics]
+    return argv
 
 
 def print_json(data: Any) -> None:

@@ -3,7 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 from pathlib import Path
+
+from scene_recon.commands.common import add_data_options, data_options_argv
+
+#: Exit status when a step finished but left nothing for the next one (as `map`'s).
+EXIT_EMPTY = 3
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -12,15 +19,46 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="the whole pipeline on a recording: map, contact graph, CAD replacement -> interactive scene",
         description="Run stages 2-4 on a recording (bag or frame folder): `map` into OUT/map, `graph` into "
         "OUT/graph, `replace` into OUT/scene (scene.urdf, scene.xml, scene.glb, joint_states.json, "
-        "replacement.json). Each step is the subcommand of the same name and prints its own progress.",
+        "replacement.json). Each step is the subcommand of the same name and prints its own progress. "
+        "Stops with a non-zero status, saying why, when a step fails or the map holds no object.",
     )
     p.add_argument("source", help="ROS 2 bag (.mcap/.db3/folder) or frame folder")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--segmenter", choices=("auto", "oracle", "onnx", "none"), default="auto",
                    help="auto: the oracle when the recording has ground truth beside it, else none (default)")
+    p.add_argument("--model-config", help="ONNX model config YAML for --segmenter onnx (config/segmentation/*.yaml)")
+    p.add_argument("--max-depth", type=float, metavar="M", help="map: ignore depth readings beyond M metres")
+    p.add_argument("--min-depth", type=float, metavar="M", help="map: ignore depth readings nearer than M metres")
     p.add_argument("--method", choices=("ours", "paper"), default="ours", help="CAD replacement method")
     p.add_argument("--seeds-per-class", type=int, default=10, metavar="N", help="procedural CAD models per class")
+    add_data_options(p)
     p.set_defaults(func=run)
+
+
+def _map_argv(args: argparse.Namespace, segmenter: str, out: Path) -> list[str]:
+    argv = ["map", str(args.source), "--out", str(out / "map"), "--segmenter", segmenter]
+    if args.model_config:
+        argv += ["--model-config", args.model_config]
+    for opt, value in (("--max-depth", args.max_depth), ("--min-depth", args.min_depth)):
+        if value is not None:
+            argv += [opt, str(value)]
+    return argv + data_options_argv(args)
+
+
+def _no_objects(out: Path, segmenter: str, auto: bool) -> str:
+    """Why the map gives the later steps nothing to work on ("" when it has objects)."""
+    try:
+        summary = json.loads((out / "map" / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return f"{out / 'map' / 'summary.json'} is missing or unreadable"
+    if summary.get("panoptic_entities", summary.get("entities", 0)):
+        return ""
+    if segmenter == "none":
+        why = ("no ground truth lies beside the recording, so no segmenter ran ('auto' chose 'none')" if auto
+               else "--segmenter none labels nothing")
+        return (f"the map holds unlabelled surface only: {why}. Pass --segmenter onnx --model-config "
+                "config/segmentation/<model>.yaml to detect objects")
+    return f"the segmenter '{segmenter}' found no object in {summary['run']['frames']} mapped frames"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -32,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     if segmenter == "auto":
         segmenter = "oracle" if (ground_truth_path(args.source) / "scene.json").is_file() else "none"
     steps = [
-        ("map (stage 2)", ["map", str(args.source), "--out", str(out / "map"), "--segmenter", segmenter]),
+        ("map (stage 2)", _map_argv(args, segmenter, out)),
         ("contact graph (stage 3)", ["graph", str(out / "map"), "--out", str(out / "graph")]),
         ("CAD replacement (stage 4)", ["replace", str(out / "graph"), "--out", str(out / "scene"),
                                        "--method", args.method, "--seeds-per-class", str(args.seeds_per_class)]),
@@ -41,7 +79,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"\n== [{k}/{len(steps)}] {title}\n$ scene-recon {' '.join(argv)}", flush=True)
         code = main(argv)
         if code:
-            print(f"run stopped: step '{title}' failed with exit code {code}")
+            print(f"run stopped: step '{title}' failed with exit code {code}", file=sys.stderr)
             return code
-    print(f"\ninteractive scene: {out / 'scene' / 'scene.urdf'} (MuJoCo: {out / 'scene' / 'scene.xml'})")
+        if k == 1 and (why := _no_objects(out, segmenter, args.segmenter == "auto")):
+            print(f"run stopped after the map: {why}; the map is in {out / 'map'}", file=sys.stderr)
+            return EXIT_EMPTY
+    urdf, xml = out / "scene" / "scene.urdf", out / "scene" / "scene.xml"
+    if not urdf.is_file():
+        print(f"run stopped: the replacement wrote no {urdf}", file=sys.stderr)
+        return 2
+    print(f"\ninteractive scene: {urdf}" + (f" (MuJoCo: {xml})" if xml.is_file() else ""))
     return 0

@@ -178,14 +178,41 @@ def _simple_bag(tmp_path: Path, n: int = 4, **kw) -> Path:
     return path
 
 
-def test_truncated_bag_gives_clear_error(tmp_path):
-    path = _simple_bag(tmp_path, n=6)
-    mcap = path / "simple.mcap"
-    data = mcap.read_bytes()
-    cut = tmp_path / "cut.mcap"
-    cut.write_bytes(data[: len(data) // 2])
-    with pytest.raises(DatasetError, match=r"truncated|corrupt|cannot open"), RosbagLoader(cut) as loader:
-        list(loader)
+@pytest.mark.parametrize("compression", ["none", "zstd", "db3"])
+def test_truncated_bag_yields_the_frames_before_the_cut(tmp_path, caplog, compression):
+    """A recorder killed mid-write: no summary, no footer, no metadata.yaml; frames before the cut are read."""
+    n = 40  # ~0.6 MB: zstd compresses in 128 kB blocks, a cut-off chunk decodes block by block
+    colors, depths = random_frames(n, seed=5)
+    intr = CameraIntrinsics(*K, width=W, height=H)
+    path = tmp_path / "full"
+    storage = "db3" if compression == "db3" else "mcap"
+    writer = RGBDBagWriter(path, storage=storage)
+    if compression == "zstd":  # chunk compression, as `ros2 bag record --compression-mode storage`
+        from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+        writer._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    with writer as w:
+        for i in range(n):
+            w.write_frame(T0 + i * PERIOD, colors[i], depths[i], intr, np.eye(4))
+    data = (path / f"full.{storage}").read_bytes()
+    killed = tmp_path / "killed"  # what a killed recorder leaves: the storage file only, cut short
+    killed.mkdir()
+    (killed / f"killed_0.{storage}").write_bytes(data[: len(data) * 6 // 10])
+    assert detect_format(killed) == "rosbag2"
+    with caplog.at_level(logging.WARNING), open_dataset(killed) as loader:
+        frames = list(loader)
+        assert loader.truncated and loader.damage
+    assert "reading the frames before the cut" in caplog.text
+    assert 1 <= len(frames) < n
+    for i, f in enumerate(frames):  # the frames read are the first ones, pixel exact
+        np.testing.assert_array_equal(f.color, colors[i])
+        np.testing.assert_allclose(f.depth, depths[i], atol=1e-6)
+        assert f.timestamp_ns == T0 + i * PERIOD
+    assert len(frames) >= (n // 4 if compression == "zstd" else n // 2)  # what lies before the cut is read
+    # cut inside the file header: nothing to salvage, a clear error
+    (tmp_path / "stub.mcap").write_bytes(data[:30])
+    with pytest.raises(DatasetError, match="cannot open bag"):
+        RosbagLoader(tmp_path / "stub.mcap")
     garbage = tmp_path / "garbage.mcap"
     garbage.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 100)
     with pytest.raises(DatasetError):

@@ -26,10 +26,13 @@ def test_color_round_trip(encoding):
 
 
 def test_depth_round_trip_and_errors():
-    d = np.array([[0.0, 1.2345, 65.535], [0.001, 2.0, np.nan]], np.float32)
+    d = np.array([[0.0, 1.2345, 65.534], [0.001, 2.0, np.nan]], np.float32)
     enc, h, w, step, data = encode_depth(d, "16UC1")
     out = decode_depth(enc, h, w, step, data.tobytes())
-    np.testing.assert_allclose(out, [[0, 1.234, 65.535], [0.001, 2.0, 0]], atol=1e-6)  # 1 mm steps, NaN -> 0
+    np.testing.assert_allclose(out, [[0, 1.234, 65.534], [0.001, 2.0, 0]], atol=1e-6)  # 1 mm steps, NaN -> 0
+    # past 65.534 m there is no 16-bit code left: 65535 is the "no reading" marker, so it encodes as invalid
+    far = encode_depth(np.array([[65.535, 70.0]], np.float32), "16UC1")
+    np.testing.assert_array_equal(np.frombuffer(far[4].tobytes(), "<u2"), [0, 0])
     with pytest.raises(DatasetError, match="unsupported depth encoding '8UC1'"):
         decode_depth("8UC1", 2, 3, 3, b"\0" * 6)
     with pytest.raises(DatasetError, match="truncated"):
@@ -91,3 +94,12 @@ def test_frame_validation():
         RGBDFrame(np.zeros((4, 4, 3), np.uint8), np.zeros((4, 4), np.float32), intr, np.full((4, 4), np.nan), 0)
     with pytest.raises(DatasetError, match="focal"):
         CameraIntrinsics(0, 100, 2, 2, 4, 4)
+
+
+@pytest.mark.parametrize("encoding", ["16UC1", "mono16"])
+@pytest.mark.parametrize("bigendian", [0, 1])
+def test_16bit_depth_0_and_65535_are_invalid(encoding, bigendian):
+    """Sensors write 65535 for "no reading" (saturation): it must not become a wall at 65.5 m."""
+    raw = np.array([[0, 65535, 1000], [65534, 1, 4000]], ">u2" if bigendian else "<u2")
+    out = decode_depth(encoding, 2, 3, 6, raw.tobytes(), bigendian)
+    np.testing.assert_allclose(out, [[0, 0, 1.0], [65.534, 0.001, 4.0]], rtol=1e-6)
