@@ -42,6 +42,7 @@ def _yolo_outputs(channels_last: bool = False) -> dict[str, np.ndarray]:
 
 
 def _yolo_segmenter(constant_model, channels_last: bool = False, **overrides) -> OnnxSegmenter:
+    overrides.setdefault("score_threshold", 0.7)  # the paper's threshold; real detectors default to 0.4
     cfg = OnnxModelConfig(convention="yolo_seg", class_names="coco80", **overrides)
     cfg.yolo.predictions, cfg.yolo.prototypes = "output0", "output1"
     return OnnxSegmenter(cfg, model_bytes=constant_model(_yolo_outputs(channels_last)))
@@ -287,8 +288,8 @@ def test_clear_errors(tmp_path, constant_model):
         OnnxSegmenter(OnnxModelConfig(class_names="imagenet"), model_bytes=constant_model(_yolo_outputs()))
     cfg = OnnxModelConfig()
     cfg.yolo.predictions = "detections"
-    seg = OnnxSegmenter(cfg, model_bytes=constant_model(_yolo_outputs()))
-    with pytest.raises(SegmentationError, match="output0"):
-        seg.segment(np.zeros((48, 64, 3), np.uint8))
+    with pytest.raises(SegmentationError, match=r"yolo.predictions: the model has no output 'detections'.*output0"):
+        OnnxSegmenter(cfg, model_bytes=constant_model(_yolo_outputs()))  # checked when the model is loaded
+    seg = OnnxSegmenter(OnnxModelConfig(), model_bytes=constant_model(_yolo_outputs()))
     with pytest.raises(SegmentationError, match="uint8"):
         seg.segment(np.zeros((48, 64, 3), np.float32))
