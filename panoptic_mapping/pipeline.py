@@ -73,11 +73,15 @@ def map_recording(
     data_config: DataInputConfig | None = None,
     progress: bool = True,
     mapper: PanopticMapper | None = None,
+    class_table: ClassTable | None = None,
 ) -> tuple[PanopticMapper, MappingRun]:
-    """Integrate every posed frame of `source`; segment keyframes only (when gating is enabled)."""
+    """Integrate every posed frame of `source`; segment keyframes only (when gating is enabled).
+
+    class_table: the table the segmenter's class ids come from (default config/classes.yaml).
+    """
     from tqdm import tqdm
 
-    mapper = mapper or PanopticMapper(mapper_config, class_metas())
+    mapper = mapper or PanopticMapper(mapper_config, class_metas(class_table))
     run = MappingRun()
     t_start = time.perf_counter()
     with open_dataset(source, data_config) as loader:
