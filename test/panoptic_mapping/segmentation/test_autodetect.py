@@ -62,6 +62,9 @@ def test_yolo_family_told_apart_by_prediction_count(shape, size, convention):
         assert cfg.yolo.has_objectness(convention) == (convention == "yolov5")
     title = {"yolox": "YOLOX ", "yolov5": "YOLOv5 ", "yolov8": "YOLOv8/11 detection "}[convention]
     assert r.description.startswith(title + "detected") and "masks from depth" in r.description
+    reason = {"yolox": "(1, N, 5+nc) with N = ", "yolov5": "(1, N, 5+nc) with N = 3 anchors x ",
+              "yolov8": "(1, 4+nc, N) with N = "}[convention]
+    assert reason in r.description and "matches no YOLO grid" not in r.description  # matched, not guessed
 
 
 def test_yolo_seg_and_yolov5_seg():
