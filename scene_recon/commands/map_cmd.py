@@ -114,14 +114,14 @@ def run(args: argparse.Namespace) -> int:
     mapper = PanopticMapper.load(args.resume) if args.resume else None
     mapper, run_stats = map_recording(args.source, segmenter, mapper_config_from_args(args), data_cfg,
                                       progress=not args.json, mapper=mapper, class_table=table)
-    extra = {"segmenter": name, "source": str(args.source)}
+    run_info = {"segmenter": name, "source": str(args.source)}
     if name == "oracle":
-        extra["noise"] = args.noise
+        run_info["noise"] = args.noise
     if name == "onnx":
-        extra["model"] = str(args.model or args.model_config)
+        run_info["model"] = str(args.model or args.model_config)
     if args.classes:
-        extra["classes"] = str(args.classes)
-    ents, summary = write_map_outputs(args.out, mapper, run_stats, extra=extra)
+        run_info["classes"] = str(args.classes)
+    ents, summary = write_map_outputs(args.out, mapper, run_stats, extra=run_info)
     picture = Path(args.out) / "panoptic_map.png"
     wrote_picture = render_map_picture(ents, run_stats.poses, picture)
     if args.json:
