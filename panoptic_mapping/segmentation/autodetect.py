@@ -41,7 +41,8 @@ from panoptic_mapping.segmentation.types import SegmentationError
 
 _log = logging.getLogger(__name__)
 
-#: Input size used for YOLO models whose input is dynamic and whose metadata names no export size.
+#: Input size used for models whose input is dynamic and whose metadata names no export size (all
+#: conventions but torchvision, which is fed at the image's own size).
 DEFAULT_YOLO_INPUT = (640, 640)
 #: Stride sets of the YOLO heads: P5 (the usual) and P6 models.
 _STRIDE_SETS: tuple[tuple[int, ...], ...] = ((8, 16, 32), (8, 16, 32, 64))
@@ -152,17 +153,11 @@ def resolve_model(cfg: OnnxModelConfig, sig: ModelSignature, probe: Probe | None
     if convention == "yolo_seg" and out.yolo.objectness is None:
         out.yolo.objectness = _yolo_seg_has_objectness(out, sig, fixed or DEFAULT_YOLO_INPUT)
     input_size = fixed
-    if input_size is None:
-        if convention == "torchvision":
-            input_size = None  # the model resizes inside; feed the image as it is
-        elif convention in _YOLO_FAMILY:
-            input_size = DEFAULT_YOLO_INPUT
-            reasons.append("dynamic input: 640x640")
-        else:
-            raise SegmentationError(
-                f"the model's input {image.describe()} is dynamic; set preprocess.input_size: [width, height] "
-                "in its model config"
-            )
+    if input_size is None and convention != "torchvision":  # torchvision resizes inside: feed the image as it is
+        input_size = DEFAULT_YOLO_INPUT
+        reasons.append("dynamic input: fed at 640x640 (set preprocess.input_size otherwise)")
+        _log.info("ONNX model input %s is dynamic and its metadata names no size: feeding 640x640 (set "
+                  "preprocess.input_size in a model config for another size)", image.describe())
     out.class_names = list(_class_names(out, sig, convention))
     out.preprocess = out.preprocess.resolved(convention)
     if input_size is not None:

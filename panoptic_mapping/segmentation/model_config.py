@@ -86,8 +86,8 @@ class PreprocessConfig(Settings):
     """Image -> input tensor. `auto`/null values take the convention's exporter defaults
     (`PREPROCESS_PRESETS`); set them only for a model trained with another pipeline."""
 
-    #: Network input [width, height]; [] takes the model's static input shape (else the export
-    #: size in its metadata, else 640x640 for YOLO models and the image's own size for torchvision).
+    #: Network input [width, height]; [] takes the model's static input shape, else the export size
+    #: in its metadata, else 640x640 (torchvision: the image's own size, the model resizes inside).
     input_size: list[int] = field(default_factory=list)
     #: True: scale to fit keeping the aspect ratio and pad (YOLO letterbox); False: stretch.
     letterbox: bool = True
