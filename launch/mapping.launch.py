@@ -18,7 +18,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("source", default_value="", description="bag or frame folder to play (empty: live)"),
         DeclareLaunchArgument("rate", default_value="1.0"),
         DeclareLaunchArgument("backend", default_value="none", description="segmentation: onnx | oracle | none"),
-        DeclareLaunchArgument("model_config", default_value="", description="ONNX model config YAML"),
+        DeclareLaunchArgument("model", default_value="", description="exported .onnx model (backend onnx)"),
+        DeclareLaunchArgument("model_config", default_value="", description="ONNX model config YAML (optional)"),
+        DeclareLaunchArgument("classes", default_value="", description="class table YAML (default classes.yaml)"),
         DeclareLaunchArgument("ground_truth", default_value="", description="oracle: *_groundtruth folder"),
         DeclareLaunchArgument("noise_level", default_value="default"),
         DeclareLaunchArgument("mode", default_value="full", description="mapper: full | baseline"),
@@ -27,13 +29,15 @@ def generate_launch_description() -> LaunchDescription:
         package="scene_recon", executable="segmentation_service", name="segmentation_service", output="screen",
         # parameter names are the dotted keys of config/segmentation.yaml (ros_nodes/parameters.py)
         parameters=[{"backend": LaunchConfiguration("backend"),
+                     "onnx.model": LaunchConfiguration("model"),
                      "onnx.model_config": LaunchConfiguration("model_config"),
+                     "onnx.class_table": LaunchConfiguration("classes"),
                      "oracle.ground_truth": LaunchConfiguration("ground_truth"),
                      "oracle.level": LaunchConfiguration("noise_level")}],
     )
     mapper = Node(
         package="scene_recon", executable="panoptic_mapper", name="panoptic_mapper", output="screen",
-        parameters=[{"mode": LaunchConfiguration("mode")}],
+        parameters=[{"mode": LaunchConfiguration("mode"), "class_table": LaunchConfiguration("classes")}],
     )
     player = Node(
         package="scene_recon", executable="rgbd_player", name="rgbd_player", output="screen",

@@ -126,17 +126,19 @@ def map_recording(
     progress: bool = True,
     mapper: PanopticMapper | None = None,
     recentre_beyond_m: float = RECENTRE_BEYOND_M,
+    class_table: ClassTable | None = None,
 ) -> tuple[PanopticMapper, MappingRun]:
     """Integrate every posed frame of `source`; segment keyframes only (when gating is enabled).
 
     A frame the mapper fails on is logged, counted (`run.failed_frames`) and skipped. A recording
     whose first pose lies farther than `recentre_beyond_m` from the origin is mapped relative to that
     pose (`mapper.origin_offset`; 0 disables). Raises DatasetError, saying why and what to do, when
-    no frame could be mapped.
+    no frame could be mapped. class_table: the table the segmenter's class ids come from (default
+    config/classes.yaml).
     """
     from tqdm import tqdm
 
-    mapper = mapper or PanopticMapper(mapper_config, class_metas())
+    mapper = mapper or PanopticMapper(mapper_config, class_metas(class_table))
     run = MappingRun()
     t_start = time.perf_counter()
     with open_dataset(source, data_config) as loader:

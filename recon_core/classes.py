@@ -24,6 +24,10 @@ from recon_core.errors import ConfigError, UnknownClassError
 
 #: Id of the "unknown" class; handled in code, never listed in the YAML file.
 UNKNOWN_CLASS_ID = -1
+#: Name of the generic thing class that detector classes without a class of their own map to (a
+#: COCO sink, bowl or laptop): mapped and exported with its observed mesh, since no CAD model
+#: exists for it. Optional in a class table.
+GENERIC_CLASS_NAME = "object"
 #: Default location of the class table in a source checkout.
 DEFAULT_CLASS_TABLE = CONFIG_DIR / "classes.yaml"
 

@@ -32,6 +32,7 @@ from panoptic_mapping.dataio.transforms import TransformLookupError
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
 from panoptic_mapping.mapper import PanopticMapper
 from panoptic_mapping.pipeline import class_metas
+from recon_core.classes import load_class_table
 from recon_core.config import CONFIG_DIR, ConfigError, Settings, setting
 from recon_core.frame import DatasetError, RGBDFrame
 from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
@@ -69,6 +70,8 @@ class MapperNodeConfig(Settings):
                                       doc="entities and markers are published at most this often (s)")
     publish_meshes: bool = setting(True, doc="entity messages carry their meshes")
     max_queue: int = setting(30, min=1, doc="frames waiting to be integrated; older ones are dropped")
+    class_table: str = setting("", doc="class table YAML (default config/classes.yaml); the segmentation "
+                               "service's onnx.class_table must be the same")
 
 
 class MapperNode(Node):
@@ -84,7 +87,8 @@ class MapperNode(Node):
         self.publish_period_s = settings.publish_period_s
         self.include_meshes = settings.publish_meshes
         self.max_queue = settings.max_queue
-        self.mapper = PanopticMapper(self.config, class_metas())
+        self.class_table = load_class_table(settings.class_table) if settings.class_table else None
+        self.mapper = PanopticMapper(self.config, class_metas(self.class_table))
         # inputs run on callback groups of their own (other executor threads), so TF and images keep
         # arriving while a frame is being integrated; TF has a group to itself: sharing one with
         # the image stream starved it (frames then all lacked poses); the map is touched by one group
@@ -295,7 +299,7 @@ class MapperNode(Node):
         return res
 
     def _srv_reset(self, _req: ResetMap.Request, res: ResetMap.Response) -> ResetMap.Response:
-        self.mapper = PanopticMapper(self.config, class_metas())
+        self.mapper = PanopticMapper(self.config, class_metas(self.class_table))
         self.pending.clear()
         self.queue.clear()
         self._changed = True

@@ -8,7 +8,10 @@ message while the node keeps serving.
 Parameters: `config_file` (the segmentation YAML, empty: config/segmentation.yaml), every key of
 that file under its dotted name (see `ros_nodes.parameters`), among them
   backend                  onnx | oracle | none
-  onnx.model_config        onnx: model config YAML (config/segmentation/*.yaml)
+  onnx.model               onnx: exported .onnx file (its convention is read off the graph)
+  onnx.model_config        onnx: optional model config YAML (config/segmentation/*.yaml)
+  onnx.class_table         onnx: class table YAML (give the mapper node the same `class_table`)
+  onnx.device              onnx: auto (CUDA when onnxruntime offers it) | cpu | cuda
   oracle.ground_truth      oracle: a generated scene's <bag>_groundtruth folder (or the bag folder)
   oracle.level             oracle: clean | default | hard (levels of the YAML)
   oracle.seed              oracle: noise seed
@@ -156,7 +159,8 @@ class SegmentationService(Node):
                                      callback_group=MutuallyExclusiveCallbackGroup())
         self.create_timer(stats_period_s, self.log_stats, callback_group=MutuallyExclusiveCallbackGroup())
         details = {
-            "onnx": f"model config {self.config.onnx.model_config}",
+            "onnx": f"model {self.config.onnx.model or self.config.onnx.model_config}: "
+                    f"{getattr(self.segmenter, 'description', '')}, on {getattr(self.segmenter, 'provider', '?')}",
             "oracle": f"ground truth {self.config.oracle.ground_truth}, level {self.config.oracle.level}, "
                       f"seed {self.config.oracle.seed}, labels from {self.resolve_topic_name(self.labels_topic)}",
             "none": "no segments (geometry only)",

@@ -4,10 +4,14 @@
                                                              "oracle.ground_truth": "out/demo/scene_groundtruth"}))
     result = seg.segment(frame.color, frame.depth, frame)   # PanopticSegmentation
 
-Backends: `onnx` (an exported model the user brings, three output conventions), `oracle` (ground
-truth of generated scenes through a network-like noise model), `none` (no segments).
+Backends: `onnx` (an exported model the user brings: YOLOX, YOLOv5, YOLOv8/11, YOLOv8-seg,
+torchvision Mask/Faster R-CNN or semantic logits, the convention read off the graph), `oracle`
+(ground truth of generated scenes through a network-like noise model), `none` (no segments).
+
+    seg = make_segmenter(load_segmentation_config(overrides={"backend": "onnx", "onnx.model": "yolox_s.onnx"}))
 """
 
+from panoptic_mapping.segmentation.autodetect import ModelSignature, ResolvedModel, resolve_model
 from panoptic_mapping.segmentation.base import PanopticSegmenter
 from panoptic_mapping.segmentation.config import (
     BACKENDS,
@@ -21,7 +25,7 @@ from panoptic_mapping.segmentation.config import (
 from panoptic_mapping.segmentation.factory import make_segmenter
 from panoptic_mapping.segmentation.model_config import OnnxModelConfig, load_model_config
 from panoptic_mapping.segmentation.none_backend import NoneSegmenter
-from panoptic_mapping.segmentation.onnx_backend import OnnxSegmenter, OnnxTiming
+from panoptic_mapping.segmentation.onnx_backend import OnnxSegmenter, OnnxTiming, select_providers
 from panoptic_mapping.segmentation.oracle import EntityClass, OracleSegmenter
 from panoptic_mapping.segmentation.panoptic import assemble
 from panoptic_mapping.segmentation.types import (
@@ -36,6 +40,7 @@ __all__ = [
     "BACKENDS",
     "EntityClass",
     "MaskCrop",
+    "ModelSignature",
     "NoneSegmenter",
     "OnnxConfig",
     "OnnxModelConfig",
@@ -47,6 +52,7 @@ __all__ = [
     "PaintConfig",
     "PanopticSegmentation",
     "PanopticSegmenter",
+    "ResolvedModel",
     "Segment",
     "SegmentCandidate",
     "SegmentationConfig",
@@ -55,4 +61,6 @@ __all__ = [
     "load_model_config",
     "load_segmentation_config",
     "make_segmenter",
+    "resolve_model",
+    "select_providers",
 ]

@@ -146,13 +146,20 @@ class OracleConfig(Settings):
 
 @dataclass
 class OnnxConfig(Settings):
-    """Model-based backend: the model and its decoding are described by a model YAML file."""
+    """Model-based backend: an exported model, described by its own graph or a model YAML file."""
 
-    #: Model config YAML (`config/segmentation/*.yaml`); relative paths are looked up from the
-    #: working directory, then from the repository root.
-    model_config: str = "config/segmentation/yolo_seg.yaml"
+    #: The exported .onnx file; its convention, pre-processing and classes are read off the graph
+    #: (`autodetect.py`). Overrides the `model` of `model_config` when both are set.
+    model: str = setting("", doc="exported .onnx model (convention detected from the graph)")
+    #: Model config YAML (`config/segmentation/*.yaml`) pinning what detection cannot know; relative
+    #: paths are looked up from the working directory, then from the repository root.
+    model_config: str = setting("", doc="model config YAML (config/segmentation/*.yaml); optional with `model`")
+    #: Class table YAML (default: config/classes.yaml); the mapper must use the same table.
+    class_table: str = setting("", doc="class table YAML (default config/classes.yaml)")
+    #: auto: CUDA when onnxruntime offers it, else CPU; cpu; cuda (fail without it).
+    device: str = setting("auto", choices=("auto", "cpu", "cuda"), doc="onnxruntime device: auto | cpu | cuda")
     #: onnxruntime intra-op threads; 0 lets onnxruntime decide.
-    threads: int = 0
+    threads: int = setting(0, min=0, doc="onnxruntime intra-op threads; 0 = its default")
 
 
 @dataclass

@@ -1,8 +1,9 @@
-"""What every output decoder needs to know about one call (shared by the three conventions)."""
+"""What every output decoder needs to know about one call (shared by the conventions)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -20,6 +21,13 @@ class DecodeContext:
     class_map: ModelClassMap
     letterbox: Letterbox
     depth: np.ndarray | None = None
+    #: Warnings already given by this segmenter (each is logged once, not on every frame).
+    warned: set[str] = field(default_factory=set)
+
+    def warn_once(self, key: str, message: str) -> None:
+        if key not in self.warned:
+            self.warned.add(key)
+            logging.getLogger("panoptic_mapping.segmentation").warning(message)
 
     @property
     def image_size(self) -> tuple[int, int]:

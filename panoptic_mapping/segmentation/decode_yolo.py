@@ -24,11 +24,12 @@ def decode_yolo_seg(predictions: np.ndarray, prototypes: np.ndarray, ctx: Decode
     cfg, ycfg = ctx.config, ctx.config.yolo
     protos = squeeze_batch(prototypes, 3, "yolo prototypes").astype(np.float32, copy=False)
     nm, nc = protos.shape[0], len(ctx.class_map)
-    width = 4 + int(ycfg.objectness) + nc + nm
+    objectness = ycfg.has_objectness(cfg.convention)
+    width = 4 + int(objectness) + nc + nm
     cols = _columns(squeeze_batch(predictions, 2, "yolo predictions"), width, ycfg.predictions_layout, nc, nm)
-    c0 = 4 + int(ycfg.objectness)
+    c0 = 4 + int(objectness)
     cls_scores = cols[c0 : c0 + nc]
-    if ycfg.objectness:
+    if objectness:
         cls_scores = cls_scores * cols[4:5]
     # max first (fast), argmax only for the few columns above the threshold (numpy's argmax over the
     # class axis of 8400 columns costs milliseconds).

@@ -3,24 +3,40 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from panoptic_mapping.segmentation.base import PanopticSegmenter
 from panoptic_mapping.segmentation.config import BACKENDS, SegmentationConfig, resolve_path
 from panoptic_mapping.segmentation.none_backend import NoneSegmenter
 from panoptic_mapping.segmentation.types import SegmentationError
-from recon_core.classes import ClassTable
+from recon_core.classes import ClassTable, load_class_table
 
 
 def _make_onnx(config: SegmentationConfig, ground_truth: Any, table: ClassTable | None) -> PanopticSegmenter:
+    from panoptic_mapping.segmentation.model_config import OnnxModelConfig, load_model_config
     from panoptic_mapping.segmentation.onnx_backend import (
         OnnxSegmenter,  # onnxruntime is imported only when a model is used
     )
 
-    path = resolve_path(config.onnx.model_config)
-    if not path.is_file():
-        raise SegmentationError(f"onnx backend: model config {config.onnx.model_config!r} not found")
-    return OnnxSegmenter.from_yaml(path, threads=config.onnx.threads, class_table=table)
+    onnx = config.onnx
+    if onnx.model_config:
+        path = resolve_path(onnx.model_config)
+        if not path.is_file():
+            raise SegmentationError(f"onnx backend: model config {onnx.model_config!r} not found")
+        model_cfg = load_model_config(path)
+    elif onnx.model:
+        model_cfg = OnnxModelConfig()  # everything `auto`: read off the graph
+    else:
+        raise SegmentationError(
+            "onnx backend: set onnx.model to an exported .onnx file (and optionally onnx.model_config to a "
+            "model config YAML, see config/segmentation/)"
+        )
+    if onnx.model:
+        model_cfg.model = str(Path(onnx.model).expanduser().resolve())
+    if table is None and onnx.class_table:
+        table = load_class_table(resolve_path(onnx.class_table))
+    return OnnxSegmenter(model_cfg, class_table=table, threads=onnx.threads, device=onnx.device)
 
 
 def _make_oracle(config: SegmentationConfig, ground_truth: Any, table: ClassTable | None) -> PanopticSegmenter:

@@ -30,13 +30,26 @@ class Letterbox:
     pad_y: int
 
     @classmethod
-    def fit(cls, src_w: int, src_h: int, dst_w: int, dst_h: int, keep_aspect: bool = True) -> Letterbox:
+    def fit(
+        cls, src_w: int, src_h: int, dst_w: int, dst_h: int, keep_aspect: bool = True, center: bool = True
+    ) -> Letterbox:
+        """center=True: ultralytics LetterBox (size rounded, padding split evenly, the odd pixel
+        right/bottom); center=False: YOLOX `preproc` (size floored, image at the top-left corner)."""
         if not keep_aspect:
             return cls(src_w, src_h, dst_w, dst_h, dst_w / src_w, dst_h / src_h, 0, 0)
         r = min(dst_w / src_w, dst_h / src_h)
-        new_w, new_h = min(round(src_w * r), dst_w), min(round(src_h * r), dst_h)
-        return cls(src_w, src_h, dst_w, dst_h, new_w / src_w, new_h / src_h,
-                   (dst_w - new_w) // 2, (dst_h - new_h) // 2)
+        if center:
+            new_w, new_h = min(round(src_w * r), dst_w), min(round(src_h * r), dst_h)
+            pad_x, pad_y = (dst_w - new_w) // 2, (dst_h - new_h) // 2
+        else:
+            new_w, new_h = max(min(math.floor(src_w * r), dst_w), 1), max(min(math.floor(src_h * r), dst_h), 1)
+            pad_x = pad_y = 0
+        return cls(src_w, src_h, dst_w, dst_h, new_w / src_w, new_h / src_h, pad_x, pad_y)
+
+    @classmethod
+    def for_config(cls, src_w: int, src_h: int, dst_w: int, dst_h: int, cfg: PreprocessConfig) -> Letterbox:
+        """The letterbox a (resolved) pre-processing config describes."""
+        return cls.fit(src_w, src_h, dst_w, dst_h, keep_aspect=cfg.letterbox, center=cfg.pad_position != "top_left")
 
     @property
     def content_size(self) -> tuple[int, int]:
@@ -87,21 +100,36 @@ def input_size(cfg: PreprocessConfig, model_shape: list[object] | tuple[object, 
     """(width, height) of the network input: from the config, else the model's static input shape."""
     if cfg.input_size:
         return int(cfg.input_size[0]), int(cfg.input_size[1])
-    dims = list(model_shape)
-    hw = dims[2:4] if cfg.layout == "NCHW" else dims[1:3]
-    if len(hw) != 2 or not all(isinstance(d, int) and d > 0 for d in hw):
+    hw = static_input_hw(model_shape, cfg.layout)
+    if hw is None:
         raise SegmentationError(
-            f"the model's input shape {dims} is dynamic; set preprocess.input_size: [width, height] in its config"
+            f"the model's input shape {list(model_shape)} is dynamic; set preprocess.input_size: [width, height] "
+            "in its config"
         )
-    return int(hw[1]), int(hw[0])  # type: ignore[call-overload]  # dims checked to be static ints above
+    return hw[1], hw[0]
+
+
+def static_input_hw(model_shape: list[object] | tuple[object, ...], layout: str = "NCHW") -> tuple[int, int] | None:
+    """(height, width) of an image input (N, 3, H, W), (3, H, W) or NHWC when both are fixed, else None."""
+    dims = list(model_shape)
+    if len(dims) == 3:  # no batch dimension (torchvision detection exports)
+        dims = [1, *dims]
+    hw = dims[2:4] if layout == "NCHW" else dims[1:3]
+    if len(hw) != 2 or not all(isinstance(d, int) and not isinstance(d, bool) and d > 0 for d in hw):
+        return None
+    return int(hw[0]), int(hw[1])  # type: ignore[call-overload]  # checked to be positive ints above
 
 
 def make_input(color_rgb: np.ndarray, cfg: PreprocessConfig, box: Letterbox) -> np.ndarray:
-    """(H, W, 3) uint8 RGB -> (1, 3, h, w) or (1, h, w, 3) float32 tensor."""
+    """(H, W, 3) uint8 RGB -> (1, 3, h, w) or (1, h, w, 3) float32 tensor. `auto` values of `cfg`
+    take the YOLOv5/v8 defaults; resolve the config for its convention first (`resolved`)."""
+    cfg = cfg.resolved(None)
+    assert cfg.scale is not None and cfg.mean is not None and cfg.std is not None and cfg.pad_value is not None
     img = color_rgb[:, :, ::-1] if cfg.color_order == "BGR" else color_rgb
     img = box.apply(np.ascontiguousarray(img), cfg.pad_value)
     x = img.astype(np.float32)
-    x *= np.float32(cfg.scale)
+    if cfg.scale != 1:
+        x *= np.float32(cfg.scale)
     if any(cfg.mean):
         x -= np.asarray(cfg.mean, np.float32)
     if any(s != 1 for s in cfg.std):

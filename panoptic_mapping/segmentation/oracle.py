@@ -34,7 +34,7 @@ from panoptic_mapping.segmentation.noise import (
 )
 from panoptic_mapping.segmentation.panoptic import assemble
 from panoptic_mapping.segmentation.types import MaskCrop, PanopticSegmentation, SegmentationError, SegmentCandidate
-from recon_core.classes import ClassInfo, ClassTable, load_class_table
+from recon_core.classes import GENERIC_CLASS_NAME, ClassInfo, ClassTable, load_class_table
 from recon_core.frame import RGBDFrame
 
 #: SeedSequence entropy must be non-negative: frame keys (indices or stamps) are folded into 64 bits.
@@ -82,7 +82,8 @@ class OracleSegmenter(PanopticSegmenter):
         #: entity id -> known?, for a vectorised check of each label image.
         self._known = np.zeros(max(self.entities) + 1, bool)
         self._known[list(self.entities)] = True
-        self._thing_classes = [c for c in self.table if c.is_thing]
+        # Spurious blobs take a class the generated world has: not the generic class of real detectors.
+        self._thing_classes = [c for c in self.table if c.is_thing and c.name != GENERIC_CLASS_NAME]
 
     @classmethod
     def from_ground_truth(

@@ -23,11 +23,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("source", help="bag or frame folder")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--segmenter", choices=["oracle", "onnx", "none"], default="oracle",
-                   help="2D panoptic backend (default oracle: needs a generated scene's ground truth)")
+    p.add_argument("--segmenter", choices=["auto", "oracle", "onnx", "none"], default="auto",
+                   help="2D panoptic backend; auto (default): onnx when --model/--model-config is given, else the "
+                   "oracle when the recording has ground truth (a generated scene), else none (geometry only)")
     p.add_argument("--noise", default="default", help="oracle noise level: clean | default | hard")
     p.add_argument("--ground-truth", help="ground-truth folder for the oracle (default: beside the bag)")
-    p.add_argument("--model-config", help="ONNX model config YAML (config/segmentation/*.yaml)")
+    p.add_argument("--model", metavar="ONNX",
+                   help="exported detector/segmenter (YOLOX, YOLOv5, YOLOv8/11, YOLOv8-seg, torchvision Mask/Faster "
+                   "R-CNN, semantic logits); its output convention is read off the graph")
+    p.add_argument("--model-config", help="ONNX model config YAML pinning what detection gets wrong "
+                   "(config/segmentation/*.yaml)")
+    p.add_argument("--classes", metavar="YAML", help="class table (default config/classes.yaml)")
+    p.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto",
+                   help="onnxruntime device (auto: CUDA when available, else CPU)")
     p.add_argument("--mode", choices=["full", "baseline"], default="full",
                    help="full = the paper's method; baseline = Voxblox++-style fusion")
     p.add_argument("--config", help="mapper config YAML (default config/mapper.yaml)")
@@ -44,24 +52,43 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def build_segmenter(args: argparse.Namespace):
+def choose_segmenter(args: argparse.Namespace) -> tuple[str, str]:
+    """The backend `--segmenter` names, `auto` resolved; and why (for the log)."""
+    from scene_recon.synthetic.generate import ground_truth_path
+
+    if args.segmenter != "auto":
+        return args.segmenter, "--segmenter"
+    if getattr(args, "model", None) or getattr(args, "model_config", None):
+        return "onnx", "a model was given"
+    if getattr(args, "ground_truth", None):
+        return "oracle", "--ground-truth was given"
+    if (ground_truth_path(Path(args.source)) / "scene.json").is_file():
+        return "oracle", "the recording has ground truth beside it"
+    return "none", "no model and no ground truth: geometry only"
+
+
+def build_segmenter(args: argparse.Namespace, segmenter: str | None = None, class_table=None):
     from panoptic_mapping.segmentation.config import SegmentationConfig
     from panoptic_mapping.segmentation.factory import make_segmenter
     from scene_recon.synthetic.generate import ground_truth_path
 
-    if args.segmenter == "none":
+    name = segmenter or choose_segmenter(args)[0]
+    if name == "none":
         return None
-    cfg = SegmentationConfig(backend=args.segmenter)
-    if args.segmenter == "oracle":
+    cfg = SegmentationConfig(backend=name)
+    if name == "oracle":
         gt = args.ground_truth or str(ground_truth_path(Path(args.source)))
         cfg.oracle.ground_truth = gt
         cfg.oracle.level = args.noise
         cfg.oracle.seed = args.seed
-    elif args.segmenter == "onnx":
-        if not args.model_config:
-            raise FileNotFoundError("--segmenter onnx needs --model-config (see config/segmentation/)")
-        cfg.onnx.model_config = args.model_config
-    return make_segmenter(cfg)
+    elif name == "onnx":
+        model, model_config = getattr(args, "model", None), getattr(args, "model_config", None)
+        if not model and not model_config:
+            raise FileNotFoundError("--segmenter onnx needs --model (an exported .onnx file) or --model-config")
+        cfg.onnx.model = model or ""
+        cfg.onnx.model_config = model_config or ""
+        cfg.onnx.device = getattr(args, "device", "auto")
+    return make_segmenter(cfg, class_table=class_table)
 
 
 def mapper_config_from_args(args: argparse.Namespace):
@@ -88,18 +115,30 @@ EXIT_EMPTY = 3
 def run(args: argparse.Namespace) -> int:
     from panoptic_mapping.mapper import PanopticMapper
     from panoptic_mapping.pipeline import map_recording, write_map_outputs
+    from recon_core.classes import load_class_table
     from scene_recon.synthetic.overview import render_map_picture
 
     data_cfg = data_config_from_args(args)
-    if args.segmenter == "oracle":
+    name, why = choose_segmenter(args)
+    if not args.json:
+        print(f"segmenter: {name} ({why})")
+    if name == "oracle":
         data_cfg.topics.labels = data_cfg.topics.labels or "/ground_truth/panoptic_labels"
-    segmenter = build_segmenter(args)
+    table = load_class_table(args.classes) if args.classes else None
+    segmenter = build_segmenter(args, name, table)
+    if segmenter is not None and hasattr(segmenter, "description") and not args.json:
+        print(f"model: {segmenter.description} (onnxruntime on {segmenter.provider})")
     mapper = PanopticMapper.load(args.resume) if args.resume else None
     mapper, run_stats = map_recording(args.source, segmenter, mapper_config_from_args(args), data_cfg,
-                                      progress=not args.json, mapper=mapper)
-    ents, summary = write_map_outputs(args.out, mapper, run_stats,
-                                      extra={"segmenter": args.segmenter, "noise": args.noise,
-                                             "source": str(args.source)})
+                                      progress=not args.json, mapper=mapper, class_table=table)
+    run_info = {"segmenter": name, "source": str(args.source)}
+    if name == "oracle":
+        run_info["noise"] = args.noise
+    if name == "onnx":
+        run_info["model"] = str(args.model or args.model_config)
+    if args.classes:
+        run_info["classes"] = str(args.classes)
+    ents, summary = write_map_outputs(args.out, mapper, run_stats, extra=run_info)
     out = Path(args.out)
     written = ["entities.json", "meshes/", "map.npz", "map.json", "summary.json"]
     try:
@@ -109,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         logging.getLogger(__name__).warning("no map picture: %s", exc)
     summary["files"] = written
     (out / "summary.json").write_text(json.dumps(summary, indent=1), encoding="utf-8")
-    problem = empty_result(summary, args.segmenter)
+    problem = empty_result(summary, name)
     if args.json:
         print_json(summary)
     else:
@@ -130,7 +169,7 @@ def empty_result(summary: dict, segmenter: str) -> str:
     if segmenter != "none" and summary.get("panoptic_entities", 0) == 0:
         return (f"{r['frames']} frames mapped ({r['segmentation_calls']} segmented) but the segmenter "
                 f"'{segmenter}' found no object: the map holds unlabelled surface only (entity 'unknown'). "
-                "Check the segmenter (--segmenter, --model-config) on these images")
+                "Check the segmenter (--segmenter, --model, --model-config) on these images")
     return ""
 
 

@@ -25,8 +25,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("source", help="ROS 2 bag (.mcap/.db3/folder) or frame folder")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--segmenter", choices=("auto", "oracle", "onnx", "none"), default="auto",
-                   help="auto: the oracle when the recording has ground truth beside it, else none (default)")
-    p.add_argument("--model-config", help="ONNX model config YAML for --segmenter onnx (config/segmentation/*.yaml)")
+                   help="auto (default): onnx when --model/--model-config is given, else the oracle when the "
+                   "recording has ground truth beside it, else none")
+    p.add_argument("--model", metavar="ONNX", help="exported detector/segmenter for `map` (see `map --help`)")
+    p.add_argument("--model-config", help="ONNX model config YAML for `map`")
+    p.add_argument("--classes", metavar="YAML", help="class table for `map` (default config/classes.yaml)")
     p.add_argument("--max-depth", type=float, metavar="M", help="map: ignore depth readings beyond M metres")
     p.add_argument("--min-depth", type=float, metavar="M", help="map: ignore depth readings nearer than M metres")
     p.add_argument("--method", choices=("ours", "paper"), default="ours", help="CAD replacement method")
@@ -37,8 +40,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def _map_argv(args: argparse.Namespace, segmenter: str, out: Path) -> list[str]:
     argv = ["map", str(args.source), "--out", str(out / "map"), "--segmenter", segmenter]
-    if args.model_config:
-        argv += ["--model-config", args.model_config]
+    for opt, name in (("--model", args.model), ("--model-config", args.model_config), ("--classes", args.classes)):
+        if name:
+            argv += [opt, str(name)]
     for opt, value in (("--max-depth", args.max_depth), ("--min-depth", args.min_depth)):
         if value is not None:
             argv += [opt, str(value)]
@@ -56,19 +60,18 @@ def _no_objects(out: Path, segmenter: str, auto: bool) -> str:
     if segmenter == "none":
         why = ("no ground truth lies beside the recording, so no segmenter ran ('auto' chose 'none')" if auto
                else "--segmenter none labels nothing")
-        return (f"the map holds unlabelled surface only: {why}. Pass --segmenter onnx --model-config "
-                "config/segmentation/<model>.yaml to detect objects")
+        return (f"the map holds unlabelled surface only: {why}. Pass --model your_detector.onnx (or "
+                "--segmenter onnx --model-config config/segmentation/<model>.yaml) to detect objects")
     return f"the segmenter '{segmenter}' found no object in {summary['run']['frames']} mapped frames"
 
 
 def run(args: argparse.Namespace) -> int:
     from scene_recon.cli import main
-    from scene_recon.synthetic.generate import ground_truth_path
+    from scene_recon.commands.map_cmd import choose_segmenter
 
     out = Path(args.out)
-    segmenter = args.segmenter
-    if segmenter == "auto":
-        segmenter = "oracle" if (ground_truth_path(args.source) / "scene.json").is_file() else "none"
+    segmenter, _ = choose_segmenter(argparse.Namespace(segmenter=args.segmenter, source=args.source,
+                                                       model=args.model, model_config=args.model_config))
     steps = [
         ("map (stage 2)", _map_argv(args, segmenter, out)),
         ("contact graph (stage 3)", ["graph", str(out / "map"), "--out", str(out / "graph")]),

@@ -82,3 +82,19 @@ def test_unreadable_files(tmp_path: Path) -> None:
     bad.write_text("classes: [unclosed")
     with pytest.raises(ConfigError, match="invalid YAML"):
         load_class_table(bad)
+
+
+def test_generic_object_class_has_no_cad_model_and_stays_observed(tmp_path: Path) -> None:
+    """Detector classes without a class of their own map to `object`: a rigid movable thing with a
+    density but no procedural CAD builder, so CAD replacement keeps its observed mesh."""
+    from cad_replacement.cad import CadLibrary
+    from cad_replacement.matching import candidate_classes
+    from recon_core.classes import GENERIC_CLASS_NAME
+
+    table = load_class_table()
+    obj = table.by_name(GENERIC_CLASS_NAME)
+    assert obj.category == "rigid" and obj.is_thing and obj.movable and obj.density and obj.density > 0
+    assert obj.coco_names == () and GENERIC_CLASS_NAME not in CLASS_BUILDERS
+    assert candidate_classes(GENERIC_CLASS_NAME, table) == [GENERIC_CLASS_NAME]
+    lib = CadLibrary(cache_dir=tmp_path, seeds_per_class=1, class_table=table)
+    assert lib.candidates(GENERIC_CLASS_NAME) == [] and GENERIC_CLASS_NAME not in lib.class_names

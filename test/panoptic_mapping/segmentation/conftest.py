@@ -6,7 +6,7 @@ outputs are constants (known boxes, masks) or simple functions of the input (a 1
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,24 +18,41 @@ OPSET = 17
 IR_VERSION = 8
 
 
-def _model(nodes: list, inputs: list, outputs: list, initializers: list | None = None) -> bytes:
+def _model(nodes: list, inputs: list, outputs: list, initializers: list | None = None,
+           metadata: dict[str, str] | None = None) -> bytes:
     graph = helper.make_graph(nodes, "test_model", inputs, outputs, initializer=initializers or [])
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="scene_recon_tests")
     model.ir_version = IR_VERSION
+    if metadata:
+        helper.set_model_props(model, metadata)
     onnx.checker.check_model(model)
     return model.SerializeToString()
 
 
 def make_constant_model(outputs: dict[str, np.ndarray], input_shape: tuple[int, ...] = (1, 3, 640, 640)) -> bytes:
-    """A model whose named outputs are the given constants, whatever the image."""
+    """A model whose named outputs are the given constants (as float32), whatever the image."""
+    return make_export_like_model({k: np.asarray(v, np.float32) for k, v in outputs.items()}, input_shape)
+
+
+def make_export_like_model(
+    outputs: dict[str, np.ndarray],
+    input_shape: Sequence[int | str] = (1, 3, 640, 640),
+    output_dims: dict[str, Sequence[int | str]] | None = None,
+    metadata: dict[str, str] | None = None,
+    input_name: str = "images",
+) -> bytes:
+    """Constant outputs with the exporter's names, dtypes (int64 labels stay int64) and declared
+    shapes (`output_dims` may name symbolic dimensions, as dynamic exports do), plus export metadata."""
     nodes, outs = [], []
+    types = {np.dtype(np.float32): TensorProto.FLOAT, np.dtype(np.int64): TensorProto.INT64}
     for name, value in outputs.items():
-        value = np.asarray(value, np.float32)
+        value = np.asarray(value)
         nodes.append(helper.make_node("Constant", [], [f"{name}_c"], value=numpy_helper.from_array(value)))
         nodes.append(helper.make_node("Identity", [f"{name}_c"], [name]))
-        outs.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, list(value.shape)))
-    image = helper.make_tensor_value_info("images", TensorProto.FLOAT, list(input_shape))
-    return _model(nodes, [image], outs)
+        dims = list((output_dims or {}).get(name, value.shape))
+        outs.append(helper.make_tensor_value_info(name, types[value.dtype], dims))
+    image = helper.make_tensor_value_info(input_name, TensorProto.FLOAT, list(input_shape))
+    return _model(nodes, [image], outs, metadata=metadata)
 
 
 def make_conv_model(weights: np.ndarray, bias: np.ndarray, input_shape: tuple[int, ...]) -> bytes:
@@ -52,6 +69,11 @@ def make_conv_model(weights: np.ndarray, bias: np.ndarray, input_shape: tuple[in
 @pytest.fixture
 def constant_model() -> Callable[..., bytes]:
     return make_constant_model
+
+
+@pytest.fixture
+def export_like_model() -> Callable[..., bytes]:
+    return make_export_like_model
 
 
 @pytest.fixture

@@ -42,6 +42,7 @@ def _yolo_outputs(channels_last: bool = False) -> dict[str, np.ndarray]:
 
 
 def _yolo_segmenter(constant_model, channels_last: bool = False, **overrides) -> OnnxSegmenter:
+    overrides.setdefault("score_threshold", 0.7)  # the paper's threshold; real detectors default to 0.4
     cfg = OnnxModelConfig(convention="yolo_seg", class_names="coco80", **overrides)
     cfg.yolo.predictions, cfg.yolo.prototypes = "output0", "output1"
     return OnnxSegmenter(cfg, model_bytes=constant_model(_yolo_outputs(channels_last)))
@@ -264,14 +265,16 @@ def test_nms_greedy_classwise():
 
 # ------------------------------------------------------------------------------ configs and errors
 def test_example_model_configs_load_and_run(tmp_path, constant_model, conv_model):
-    for name in ("yolo_seg", "detection", "semantic"):
+    for name in ("yolo_seg", "detection", "semantic", "yolox", "torchvision"):
         cfg = load_model_config(f"config/segmentation/{name}.yaml")
         assert cfg.convention == name and cfg.model.endswith(".onnx")
+        assert 0.35 <= cfg.score_threshold <= 0.5  # real detectors, not the paper's 0.7
     model = tmp_path / "yolo.onnx"
     model.write_bytes(constant_model(_yolo_outputs()))
     seg = OnnxSegmenter.from_yaml("config/segmentation/yolo_seg.yaml", overrides={"model": str(model)})
+    # at 0.4 the bottle (0.5) is in; the cup stays hidden behind the chair
     assert sorted(s.class_name for s in seg.segment(np.zeros((480, 640, 3), np.uint8)).segments) == [
-        "chair", "monitor"]
+        "bottle", "chair", "monitor"]
 
 
 def test_clear_errors(tmp_path, constant_model):
@@ -287,8 +290,8 @@ def test_clear_errors(tmp_path, constant_model):
         OnnxSegmenter(OnnxModelConfig(class_names="imagenet"), model_bytes=constant_model(_yolo_outputs()))
     cfg = OnnxModelConfig()
     cfg.yolo.predictions = "detections"
-    seg = OnnxSegmenter(cfg, model_bytes=constant_model(_yolo_outputs()))
-    with pytest.raises(SegmentationError, match="output0"):
-        seg.segment(np.zeros((48, 64, 3), np.uint8))
+    with pytest.raises(SegmentationError, match=r"yolo.predictions: the model has no output 'detections'.*output0"):
+        OnnxSegmenter(cfg, model_bytes=constant_model(_yolo_outputs()))  # checked when the model is loaded
+    seg = OnnxSegmenter(OnnxModelConfig(), model_bytes=constant_model(_yolo_outputs()))
     with pytest.raises(SegmentationError, match="uint8"):
         seg.segment(np.zeros((48, 64, 3), np.float32))
