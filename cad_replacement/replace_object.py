@@ -38,6 +38,7 @@ from .alignment import (
     Placement,
     PreparedObservation,
     alignment_error,
+    box_start,
     box_start_scale,
     posed_scene,
 )
@@ -172,13 +173,18 @@ def _final_error(
     cfg: CadReplacementConfig,
     scaled: CadModel | None = None,
 ) -> AlignmentError:
-    """AE of a candidate at its scaled, articulated configuration (exact geometry)."""
+    """AE of a candidate at its scaled, articulated configuration (exact geometry).
+
+    Self-visibility is that of the articulated configuration: with a door open, the inside of the
+    carcass and the door's inner face can be seen (and must then be explained by the points).
+    """
     scaled = scaled if scaled is not None else geom.model.scaled(placement.scale)
     rigid = Placement(placement.rotation, placement.translation, np.ones(3))
     scene = posed_scene(scaled.mesh(values), rigid)
     pts, nrm = _posed_samples(geom, scaled, placement, values)
     area = geom.sample_area * float(np.prod(placement.scale)) ** (2.0 / 3.0)
-    return alignment_error(prepared, scene, pts, nrm, geom.self_visible, cfg, area)
+    self_visible = geom.articulated(values).self_visible if values else geom.self_visible
+    return alignment_error(prepared, scene, pts, nrm, self_visible, cfg, area)
 
 
 def replace_object(
@@ -268,10 +274,11 @@ def _align_ours(
         geoms[m.entry.key] = geom
         prob = AlignmentProblem(
             geom, m.rotation, bottom, prepared.screen_points, cfg, prepared=prepared,
+            point_normals=prepared.screen_normals,
             anisotropy_weight=cfg.anisotropy_weight, height_target=height, height_weight=cfg.height_weight,
-            model_samples=max(60, cfg.screen_points),
+            model_samples=max(60, cfg.screen_points), envelope=True, face_reach=cfg.fit_face_reach,
         )
-        x0 = prob.start(box_start_scale(m.frame, geom, m.box_rotation, bottom), m.frame.center[:2])
+        x0 = prob.start(*box_start(m.frame, geom, m.box_rotation, bottom))
         starts.append((_rms(prob, x0) * _selection_factor(m, cfg), m, prob, x0))
     starts.sort(key=lambda it: it[0])
     timings["screen_start"] = time.perf_counter() - t
@@ -308,10 +315,18 @@ def _align_ours(
             results.append(CandidateResult(m, pl, nan_ae, float(score) * 10.0, {}, "screen", cost, nfev))
             continue
         full_count[m.entry.key] = full_count.get(m.entry.key, 0) + 1
+        kw = {
+            "prepared": prepared, "anisotropy_weight": cfg.anisotropy_weight, "height_target": height,
+            "height_weight": cfg.height_weight, "model_samples": cfg.align_model_samples,
+            "face_reach": cfg.fit_face_reach,
+        }
+        # Articulated models: the body is fitted through the articulation envelope (open doors and
+        # pulled-out drawers neither drag it nor count as clutter) and the joints are estimated at
+        # that pose; then, ``refine_rounds`` times, the pose is refitted against the model at those
+        # joint values (exact configuration: the door's points and the inside it uncovers count)
+        # and the joints are estimated again. Rigid models: one fit, Eq. (11) with dense residuals.
         prob = AlignmentProblem(
-            geom, m.rotation, bottom, prepared.fit_points, cfg, prepared=prepared,
-            anisotropy_weight=cfg.anisotropy_weight, height_target=height, height_weight=cfg.height_weight,
-            model_samples=cfg.align_model_samples,
+            geom, m.rotation, bottom, prepared.fit_points, cfg, envelope=True, point_normals=prepared.fit_normals, **kw
         )
         x2, cost2, nfev2 = prob.solve(x, cfg.align_max_nfev)
         pl = prob.placement(x2)
@@ -320,10 +335,21 @@ def _align_ours(
         art = None
         if scaled.movable_joints:
             ta = time.perf_counter()
-            rigid_pose = pl.pose
-            art = estimate_joint_values(prepared.fit_points, scaled, rigid_pose, cfg)
-            values = art.values
+            art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg, normals=prepared.fit_normals)
             t_art += time.perf_counter() - ta
+            for _ in range(cfg.refine_rounds):
+                prob_q = AlignmentProblem(
+                    geom.articulated(art.values), m.rotation, bottom, prepared.fit_points, cfg,
+                    point_normals=prepared.fit_normals, **kw,
+                )
+                x2, cost2, nfev3 = prob_q.solve(x2, cfg.refine_max_nfev)
+                nfev2 += nfev3
+                pl = prob_q.placement(x2)
+                scaled = geom.model.scaled(pl.scale)
+                ta = time.perf_counter()
+                art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg, normals=prepared.fit_normals)
+                t_art += time.perf_counter() - ta
+            values = art.values
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
         score2 = ae.ae * _selection_factor(m, cfg)
         results.append(CandidateResult(m, pl, ae, score2, values, "full", cost2, nfev + nfev2, art))
