@@ -771,6 +771,22 @@ class AlignmentProblem:
         self._cache = out
         return out
 
+    def score(self, x: NDArray[np.float64]) -> float:
+        """Two-sided robust RMS at ``x``, as the AE: over the points and the *visible* samples.
+
+        Dividing by the visible samples only (not by all drawn ones) keeps a hypothesis that
+        shows no face to the observed directions from looking good for having nothing to check.
+        """
+        r = self.residuals(x)
+        n = len(self.points)
+        total = float(np.sum(r[:n] ** 2))
+        count = n
+        nv = int(np.count_nonzero(self.visible_mask)) if self.visible_mask is not None else 0
+        if self.prepared is not None and nv > 0:
+            total += float(np.sum(r[n : n + 2 * nv] ** 2)) / self.sample_weight**2
+            count += nv
+        return float(np.sqrt(total / max(count, 1)))
+
     def residuals(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         return self._evaluate(x)[0]
 

@@ -245,12 +245,6 @@ def replace_object(
     return base
 
 
-def _rms(prob: AlignmentProblem, x: NDArray[np.float64]) -> float:
-    """Robust RMS of a problem's residuals at ``x`` (the screening score)."""
-    r = prob.residuals(x)
-    return float(np.sqrt(np.mean(r * r))) if len(r) else 0.0
-
-
 def _selection_factor(m: MatchCandidate, cfg: CadReplacementConfig) -> float:
     return (1.0 + cfg.front_ae_factor * m.d_front) * (1.0 + cfg.class_ae_factor * m.d_class)
 
@@ -279,7 +273,7 @@ def _align_ours(
             model_samples=max(60, cfg.screen_points), envelope=True, face_reach=cfg.fit_face_reach,
         )
         x0 = prob.start(*box_start(m.frame, geom, m.box_rotation, bottom))
-        starts.append((_rms(prob, x0) * _selection_factor(m, cfg), m, prob, x0))
+        starts.append((prob.score(x0) * _selection_factor(m, cfg), m, prob, x0))
     starts.sort(key=lambda it: it[0])
     timings["screen_start"] = time.perf_counter() - t
     # Coarse stage 2: a short robust LM on the subsample for the best starts.
@@ -296,7 +290,7 @@ def _align_ours(
         per_model[m.entry.key] = per_model.get(m.entry.key, 0) + 1
         fitted += 1
         x, cost, nfev = prob.solve(x0, cfg.screen_max_nfev)
-        screened.append((_rms(prob, x) * _selection_factor(m, cfg), m, x, cost, nfev))
+        screened.append((prob.score(x) * _selection_factor(m, cfg), m, x, cost, nfev))
     timings["screen"] = time.perf_counter() - t
     screened.sort(key=lambda it: it[0])
 
@@ -335,7 +329,7 @@ def _align_ours(
         art = None
         if scaled.movable_joints:
             ta = time.perf_counter()
-            art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg, normals=prepared.fit_normals)
+            art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg)
             t_art += time.perf_counter() - ta
             for _ in range(cfg.refine_rounds):
                 prob_q = AlignmentProblem(
@@ -347,7 +341,7 @@ def _align_ours(
                 pl = prob_q.placement(x2)
                 scaled = geom.model.scaled(pl.scale)
                 ta = time.perf_counter()
-                art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg, normals=prepared.fit_normals)
+                art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg)
                 t_art += time.perf_counter() - ta
             values = art.values
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
