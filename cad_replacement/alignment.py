@@ -31,6 +31,7 @@ AE (reported, and ours' selection criterion) is the RMS of both directions; the 
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Mapping
@@ -45,7 +46,7 @@ from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
 from cad_replacement.cad.library import CadEntry
-from cad_replacement.cad.model import CadModel
+from cad_replacement.cad.model import CadModel, Link
 from recon_core.geometry.box import GravityBox
 from recon_core.kinematic_tree import Joint
 
@@ -64,10 +65,10 @@ VIEW_DISTANCE = 20.0
 FACE_SLAB = 0.05
 #: Articulation envelope: largest step (m) of a moving part's farthest point between two swept
 #: copies, and largest angular step (rad) of a revolute sweep.
-SWEEP_STEP = 0.03
-SWEEP_MAX_ANGLE = np.radians(8.0)
+SWEEP_STEP = 0.08
+SWEEP_MAX_ANGLE = np.radians(15.0)
 #: Most swept copies of one joint's subtree in the envelope.
-SWEEP_MAX_COPIES = 64
+SWEEP_MAX_COPIES = 16
 
 
 def rot_z(angle: float) -> NDArray[np.float64]:
@@ -211,6 +212,16 @@ class ModelGeometry:
     envelope: o3d.t.geometry.RaycastingScene | None = None
     static_samples: NDArray[np.bool_] | None = None
     joint_values: dict[str, float] = field(default_factory=dict)
+    _bare: CadModel | None = None
+
+    @property
+    def bare_model(self) -> CadModel:
+        """The model without collision shapes and inertials: meshes and kinematics only, so
+        ``scaled`` copies for joint estimation and the AE cost a fraction of a full one."""
+        if self._bare is None:
+            links = tuple(Link(lk.name, lk.mesh, lk.color) for lk in self.model.links)
+            self._bare = dataclasses.replace(self.model, links=links)
+        return self._bare
 
     @property
     def static_mask(self) -> NDArray[np.bool_]:
@@ -663,23 +674,26 @@ class AlignmentProblem:
 
     def _point_terms(
         self, scene: o3d.t.geometry.RaycastingScene, p_model: NDArray[np.float64], s: NDArray[np.float64],
-        a: NDArray[np.float64], t: NDArray[np.float64],
+        a: NDArray[np.float64], t: NDArray[np.float64], subset: NDArray[np.int64] | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Signed map-frame distances of the points to a surface given in the model frame, and d/dx."""
+        """Signed map-frame distances of the points (``subset`` of them) to a surface given in the
+        model frame (``p_model``: those points in the model frame), and d/dx."""
         c_m = self.geom.center
         cp, cn = closest_points(scene, p_model)
         mc = cp - c_m
         q = (mc * s) @ a.T + t
         nq = (cn / s) @ a.T
         nq /= np.maximum(np.linalg.norm(nq, axis=1, keepdims=True), EPS)
-        diff = self.points - q
+        points = self.points if subset is None else self.points[subset]
+        normals = self.point_normals if subset is None or self.point_normals is None else self.point_normals[subset]
+        diff = points - q
         d = np.linalg.norm(diff, axis=1)
         sign = np.where(np.einsum("ij,ij->i", diff, nq) < 0.0, -1.0, 1.0)
         v = np.where((d > 1e-9)[:, None], diff * (sign / np.maximum(d, EPS))[:, None], nq)
         r, jac = sign * d, -np.einsum("ni,nip->np", v, self._dq(mc, q - t, s, a))
-        if self.point_normals is not None:
+        if normals is not None:
             # Opposite normals: residual sqrt(d^2 + tau^2) (smooth, >= tau), pulling only weakly.
-            wrong = np.einsum("ij,ij->i", nq, self.point_normals) < 0.0
+            wrong = np.einsum("ij,ij->i", nq, normals) < 0.0
             if np.any(wrong):
                 rf = np.sqrt(d * d + self.tau * self.tau)
                 jac = np.where(wrong[:, None], jac * (r / rf)[:, None], jac)
@@ -699,14 +713,16 @@ class AlignmentProblem:
         # point -> CAD: map into the canonical frame, closest point there, map back (true distance).
         p_model = ((self.points - t) @ a) / s + c_m
         r, jac = self._point_terms(self.geom.scene, p_model, s, a, t)
-        if self.envelope:
+        far = np.flatnonzero(np.abs(r) > self.margin) if self.envelope else np.zeros(0, dtype=np.int64)
+        if len(far):
             assert self.geom.envelope is not None
-            # Explained by a moving part at another joint value: sqrt(d^2 + margin^2) (smooth, > margin).
-            r_e, jac_e = self._point_terms(self.geom.envelope, p_model, s, a, t)
+            # Explained by a moving part at another joint value: sqrt(d^2 + margin^2) (smooth, > margin),
+            # so only points farther than the margin from the closed model need the envelope.
+            r_e, jac_e = self._point_terms(self.geom.envelope, p_model[far], s, a, t, far)
             r_m = np.sqrt(r_e * r_e + self.margin * self.margin)
-            use = r_m < np.abs(r)
-            r = np.where(use, r_m, r)
-            jac = np.where(use[:, None], jac_e * (r_e / r_m)[:, None], jac)
+            use = r_m < np.abs(r[far])
+            r[far] = np.where(use, r_m, r[far])
+            jac[far] = np.where(use[:, None], jac_e * (r_e / r_m)[:, None], jac[far])
         if self.robust:
             r, dr = soft_l1(r, self.tau)
             jac = jac * dr[:, None]

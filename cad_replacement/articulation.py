@@ -82,31 +82,17 @@ class _LinkScenes:
         return scene.compute_distance(o3c.Tensor(local.astype(np.float32))).numpy().astype(np.float64)
 
     def distance_batch(
-        self, link: str, world_poses: NDArray[np.float64], points: NDArray[np.float64],
-        normals: NDArray[np.float64] | None = None, floor: float = 0.0,
+        self, link: str, world_poses: NDArray[np.float64], points: NDArray[np.float64]
     ) -> NDArray[np.float64]:
-        """(G, N) distances of the same points to a link at G poses, in one query.
-
-        With ``normals`` (observed, map frame), a point whose closest face on the link faces the
-        other way (the back of a thin door) is at ``sqrt(d^2 + floor^2)``: the two faces of a
-        door 4-7 cm thick would otherwise fit the same points a few degrees apart.
-        """
+        """(G, N) distances of the same points to a link at G poses, in one query."""
         scene = self.scenes.get(link)
         if scene is None or len(points) == 0:
             return np.full((len(world_poses), len(points)), np.inf)
         # Inverse rigid transform per grid pose: R^T (x - t), batched over (G, N).
         local = np.einsum("gnj,gji->gni", points[None, :, :] - world_poses[:, None, :3, 3], world_poses[:, :3, :3])
         flat = local.reshape(-1, 3).astype(np.float32)
-        if normals is None:
-            d = scene.compute_distance(o3c.Tensor(flat)).numpy().astype(np.float64)
-            return d.reshape(len(world_poses), len(points))
-        res = scene.compute_closest_points(o3c.Tensor(flat))
-        cp = res["points"].numpy().astype(np.float64).reshape(local.shape)
-        cn = res["primitive_normals"].numpy().astype(np.float64).reshape(local.shape)
-        d = np.linalg.norm(local - cp, axis=2)
-        n_local = np.einsum("nj,gji->gni", normals, world_poses[:, :3, :3])
-        wrong = np.einsum("gni,gni->gn", cn, n_local) < 0.0
-        return np.where(wrong, np.sqrt(d * d + floor * floor), d)
+        d = scene.compute_distance(o3c.Tensor(flat)).numpy().astype(np.float64)
+        return d.reshape(len(world_poses), len(points))
 
 
 def estimate_joint_values(
@@ -116,13 +102,11 @@ def estimate_joint_values(
     config: CadReplacementConfig | None = None,
     *,
     initial: dict[str, float] | None = None,
-    normals: NDArray[np.float64] | None = None,
 ) -> ArticulationResult:
     """Estimate every movable joint of ``model`` (already scaled) placed at ``pose`` (model -> map).
 
     Returns the values (clipped into the limits) and per-joint evidence. Joints whose moving part
-    explains no observed point keep their initial (closed) value. ``normals`` (observed normals of
-    ``points``, when the observation has them) keep points off the far face of thin parts.
+    explains no observed point keep their initial (closed) value.
     """
     cfg = config or CadReplacementConfig()
     t0 = time.perf_counter()
@@ -136,19 +120,22 @@ def estimate_joint_values(
     rng = np.random.default_rng(cfg.seed)
     pts_all = np.asarray(points, dtype=np.float64)
     estimates: dict[str, JointEstimate] = {}
+    # Distances of all points to every link at the current values; a joint's update refreshes the
+    # links it moves only.
+    link_poses = model.link_poses(values)
+    d_link = {lk.name: scenes.distance(lk.name, pose @ link_poses[lk.name], pts_all) for lk in model.links}
     for _ in range(max(1, cfg.joint_passes)):
         for joint in model.movable_joints:
             moving = _subtree(model, joint)
             link_poses = model.link_poses(values)
-            others = [lk.name for lk in model.links if lk.name not in moving]
             d_rest = np.full(len(pts_all), np.inf)
-            for name in others:
-                d_rest = np.minimum(d_rest, scenes.distance(name, pose @ link_poses[name], pts_all))
+            for lk in model.links:
+                if lk.name not in moving:
+                    d_rest = np.minimum(d_rest, d_link[lk.name])
             cand = np.flatnonzero(d_rest > 0.5 * tau)
             if len(cand) > cfg.joint_points:
                 cand = rng.choice(cand, cfg.joint_points, replace=False)
             pts = pts_all[cand]
-            nrm = normals[cand] if normals is not None else None
             cap = np.minimum(d_rest[cand], 10.0 * tau)
 
             # The subtree moves rigidly with the joint: P_l(q) = P_c(q) P_c(q_now)^-1 P_l(q_now), with
@@ -159,12 +146,11 @@ def estimate_joint_values(
 
             def cost_of(grid: NDArray[np.float64], joint: Joint = joint, moving: list[str] = moving,
                         pts: NDArray[np.float64] = pts, cap: NDArray[np.float64] = cap,
-                        frame: NDArray[np.float64] = frame, rel: dict = rel,
-                        nrm: NDArray[np.float64] | None = nrm) -> NDArray[np.float64]:
+                        frame: NDArray[np.float64] = frame, rel: dict = rel) -> NDArray[np.float64]:
                 child = np.stack([frame @ joint.motion(joint.clip(float(g))) for g in grid])
                 d = np.full((len(grid), len(pts)), np.inf)
                 for name in moving:
-                    d = np.minimum(d, scenes.distance_batch(name, child @ rel[name], pts, nrm, tau))
+                    d = np.minimum(d, scenes.distance_batch(name, child @ rel[name], pts))
                 return _robust(np.minimum(d, cap[None, :]), tau).sum(axis=1)
 
             closed = float(cost_of(np.array([joint.zero_value]))[0]) if len(pts) else 0.0
@@ -189,7 +175,11 @@ def estimate_joint_values(
                     value = float(np.clip(fine[fb] + 0.5 * h * (c0 - c2) / denom, joint.lower, joint.upper))
             if closed <= cost:
                 value, cost = joint.zero_value, closed
-            values[joint.name] = joint.clip(value)
+            if joint.clip(value) != values[joint.name]:
+                values[joint.name] = joint.clip(value)
+                moved = model.link_poses(values)
+                for name in moving:
+                    d_link[name] = scenes.distance(name, pose @ moved[name], pts_all)
             estimates[joint.name] = JointEstimate(joint.name, joint.type, values[joint.name], joint.lower,
                                                   joint.upper, len(pts), cost, closed)
     return ArticulationResult(values, list(estimates.values()), time.perf_counter() - t0)

@@ -178,7 +178,7 @@ def _final_error(
     Self-visibility is that of the articulated configuration: with a door open, the inside of the
     carcass and the door's inner face can be seen (and must then be explained by the points).
     """
-    scaled = scaled if scaled is not None else geom.model.scaled(placement.scale)
+    scaled = scaled if scaled is not None else geom.bare_model.scaled(placement.scale)
     rigid = Placement(placement.rotation, placement.translation, np.ones(3))
     scene = posed_scene(scaled.mesh(values), rigid)
     pts, nrm = _posed_samples(geom, scaled, placement, values)
@@ -243,6 +243,20 @@ def replace_object(
         base.articulation = chosen.articulation
     timings["total"] = time.perf_counter() - t_all
     return base
+
+
+#: Joint changes below which another refit round is not worth it (rad for revolute, m for prismatic).
+REFIT_ANGLE = np.radians(2.0)
+REFIT_SHIFT = 0.01
+
+
+def _joints_moved(model: CadModel, before: dict[str, float], after: dict[str, float]) -> bool:
+    """Whether any joint value changed enough to refit the pose at the new values."""
+    for j in model.movable_joints:
+        tol = REFIT_SHIFT if j.type == "prismatic" else REFIT_ANGLE
+        if abs(after.get(j.name, 0.0) - before.get(j.name, 0.0)) > tol:
+            return True
+    return False
 
 
 def _selection_factor(m: MatchCandidate, cfg: CadReplacementConfig) -> float:
@@ -314,36 +328,41 @@ def _align_ours(
             "height_weight": cfg.height_weight, "model_samples": cfg.align_model_samples,
             "face_reach": cfg.fit_face_reach,
         }
-        # Articulated models: the body is fitted through the articulation envelope (open doors and
-        # pulled-out drawers neither drag it nor count as clutter) and the joints are estimated at
-        # that pose; then, ``refine_rounds`` times, the pose is refitted against the model at those
-        # joint values (exact configuration: the door's points and the inside it uncovers count)
-        # and the joints are estimated again. Rigid models: one fit, Eq. (11) with dense residuals.
-        prob = AlignmentProblem(
-            geom, m.rotation, bottom, prepared.fit_points, cfg, envelope=True, point_normals=prepared.fit_normals, **kw
-        )
-        x2, cost2, nfev2 = prob.solve(x, cfg.align_max_nfev)
-        pl = prob.placement(x2)
-        scaled = geom.model.scaled(pl.scale)
-        values = scaled.zero_configuration()
+        # Articulated models: screening fitted the body through the articulation envelope (open
+        # doors and pulled-out drawers neither drag it nor count as clutter). The joints are
+        # estimated at the screened pose, the full fit runs against the model at those joint values
+        # (exact configuration: the door's points and the inside it uncovers count), and the joints
+        # are estimated again; while they move, the pose is refitted (``refine_rounds``).
+        # Rigid models: one fit, Eq. (11) with dense residuals.
         art = None
-        if scaled.movable_joints:
+        fit_geom = geom
+        if geom.model.movable_joints:
+            ta = time.perf_counter()
+            pl0 = AlignmentProblem(geom, m.rotation, bottom, prepared.fit_points, cfg).placement(x)
+            art = estimate_joint_values(prepared.fit_points, geom.bare_model.scaled(pl0.scale), pl0.pose, cfg)
+            t_art += time.perf_counter() - ta
+            fit_geom = geom.articulated(art.values)
+        nfev2 = 0
+        max_nfev = cfg.align_max_nfev
+        for _ in range(1 + (cfg.refine_rounds if art is not None else 0)):
+            before = art.values if art is not None else {}
+            prob = AlignmentProblem(
+                fit_geom, m.rotation, bottom, prepared.fit_points, cfg, point_normals=prepared.fit_normals, **kw
+            )
+            x, cost2, nfev3 = prob.solve(x, max_nfev)
+            nfev2 += nfev3
+            max_nfev = cfg.refine_max_nfev
+            pl = prob.placement(x)
+            scaled = geom.bare_model.scaled(pl.scale)
+            if art is None:
+                break
             ta = time.perf_counter()
             art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg)
             t_art += time.perf_counter() - ta
-            for _ in range(cfg.refine_rounds):
-                prob_q = AlignmentProblem(
-                    geom.articulated(art.values), m.rotation, bottom, prepared.fit_points, cfg,
-                    point_normals=prepared.fit_normals, **kw,
-                )
-                x2, cost2, nfev3 = prob_q.solve(x2, cfg.refine_max_nfev)
-                nfev2 += nfev3
-                pl = prob_q.placement(x2)
-                scaled = geom.model.scaled(pl.scale)
-                ta = time.perf_counter()
-                art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg)
-                t_art += time.perf_counter() - ta
-            values = art.values
+            if not _joints_moved(scaled, before, art.values):
+                break
+            fit_geom = geom.articulated(art.values)
+        values = art.values if art is not None else scaled.zero_configuration()
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
         score2 = ae.ae * _selection_factor(m, cfg)
         results.append(CandidateResult(m, pl, ae, score2, values, "full", cost2, nfev + nfev2, art))
