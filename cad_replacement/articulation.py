@@ -169,22 +169,26 @@ def estimate_joint_values(
             # sharp at the true value (a 1 m door moves 1.7 cm per degree), and a door's other face
             # makes a second dip a few degrees away, which one coarse parabola would blend in.
             tol = JOINT_RESOLUTION[joint.type == "prismatic"]
+            snap = cfg.joint_snap_shift if joint.type == "prismatic" else cfg.joint_snap_angle
             n_fine = max(3, cfg.joint_refine)
-            while True:
+            fine, fcost, fb = grid, costs, best
+            # Each level moves the value by less than its ``step``: once the value cannot leave the
+            # snap zone around closed (see below) refining further is moot.
+            while step > tol and abs(value - joint.zero_value) + step >= snap:
                 fine = np.clip(np.linspace(value - step, value + step, n_fine), joint.lower, joint.upper)
                 fcost = cost_of(fine)
                 fb = int(np.argmin(fcost))
                 value, cost = float(fine[fb]), float(fcost[fb])
                 step = 2.0 * step / (n_fine - 1)
-                if step <= tol:
-                    break
             if 0 < fb < len(fine) - 1:  # parabolic step through the three best neighbours
                 c0, c1, c2 = fcost[fb - 1], fcost[fb], fcost[fb + 1]
                 denom = c0 - 2.0 * c1 + c2
                 h = fine[fb + 1] - fine[fb]
                 if denom > EPS:
                     value = float(np.clip(fine[fb] + 0.5 * h * (c0 - c2) / denom, joint.lower, joint.upper))
-            if closed <= cost:
+            # Openings below ``snap`` are not told apart from a pose or scale error of a few mm
+            # (a drawer "pulled" 2 cm makes up for a body fitted 2 cm short): closed.
+            if closed <= cost or abs(value - joint.zero_value) < snap:
                 value, cost = joint.zero_value, closed
             if joint.clip(value) != values[joint.name]:
                 values[joint.name] = joint.clip(value)

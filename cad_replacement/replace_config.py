@@ -110,6 +110,10 @@ class CadReplacementConfig:
     joint_points: int = 200
     #: Coordinate-descent passes over the joints.
     joint_passes: int = 1
+    #: Estimated openings smaller than these (rad for revolute, m for prismatic joints) are taken
+    #: as closed: they are within what a pose/scale error of a few mm explains.
+    joint_snap_angle: float = 0.0873  # 5 degrees
+    joint_snap_shift: float = 0.04
     #: Ours, articulated models: rounds of (rigid refit at the estimated joint values, joint
     #: estimation) after the envelope fit, and the LM evaluations of each refit.
     refine_rounds: int = 2
