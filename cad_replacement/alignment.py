@@ -34,7 +34,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -556,11 +556,71 @@ def soft_l1(r: NDArray[np.float64], tau: float) -> tuple[NDArray[np.float64], ND
     return rr, deriv
 
 
+@dataclass
+class _Configuration:
+    """A model at some joint values (model frame): scene, link of every face, joint axes."""
+
+    scene: o3d.t.geometry.RaycastingScene
+    face_link: NDArray[np.int64]
+    poses: NDArray[np.float64]  # (L, 4, 4) link poses
+    axes: NDArray[np.float64]  # (K, 3) joint axes
+    origins: NDArray[np.float64]  # (K, 3) points on the joint axes
+
+
+class _Kinematics:
+    """Link meshes as arrays, so a model at new joint values is one transform and one scene build."""
+
+    def __init__(self, geom: ModelGeometry, joints: list[Joint]) -> None:
+        model = geom.model
+        self.model = model
+        self.joints = joints
+        self.names = geom.link_names
+        index = {n: i for i, n in enumerate(self.names)}
+        verts, faces, face_link = [], [], []
+        offset = 0
+        for i, n in enumerate(self.names):
+            mesh = model.link(n).mesh
+            if len(mesh.faces) == 0:
+                continue
+            verts.append(np.asarray(mesh.vertices, dtype=np.float64))
+            faces.append(np.asarray(mesh.faces, dtype=np.int64) + offset)
+            face_link.append(np.full(len(mesh.faces), i))
+            offset += len(mesh.vertices)
+        self.vert_link = np.concatenate([np.full(len(v), fl[0]) for v, fl in zip(verts, face_link, strict=True)])
+        self.verts = np.concatenate(verts)
+        self.faces = np.ascontiguousarray(np.concatenate(faces), dtype=np.uint32)
+        self.face_link = np.concatenate(face_link)
+        # (K, L): which links each joint moves.
+        self.moves = np.zeros((len(joints), len(self.names)), dtype=bool)
+        for k, j in enumerate(joints):
+            self.moves[k, [index[n] for n in joint_subtree(model, j)]] = True
+        self._last: tuple[tuple[float, ...], _Configuration] | None = None
+
+    def at(self, values: dict[str, float]) -> _Configuration:
+        key = tuple(values[j.name] for j in self.joints)
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        lp = self.model.link_poses(values)
+        poses = np.stack([lp[n] for n in self.names])
+        rot, trans = poses[self.vert_link, :3, :3], poses[self.vert_link, :3, 3]
+        v = np.einsum("nij,nj->ni", rot, self.verts) + trans
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3c.Tensor(v.astype(np.float32)), o3c.Tensor(self.faces))
+        frames = [lp[j.parent] @ j.origin for j in self.joints]
+        axes = np.array([f[:3, :3] @ j.axis for f, j in zip(frames, self.joints, strict=True)])
+        origins = np.array([f[:3, 3] for f in frames])
+        conf = _Configuration(scene, self.face_link, poses, axes.reshape(-1, 3), origins.reshape(-1, 3))
+        self._last = (key, conf)
+        return conf
+
+
 class AlignmentProblem:
     """Residuals and analytic Jacobian of the dense fit for one candidate (see module docstring).
 
     Parameters ``x``: ``(log sx, log sy, log sz, dyaw, tx, ty)`` or, with ``uniform_scale``,
-    ``(log s, dyaw, tx, ty)``; ``(tx, ty)`` is the model box centre in the map.
+    ``(log s, dyaw, tx, ty)``; ``(tx, ty)`` is the model box centre in the map. With ``joints``,
+    one offset per joint (rad or m, from ``geom.joint_values``) follows: pose and joint values are
+    then refined together.
     """
 
     def __init__(
@@ -582,8 +642,17 @@ class AlignmentProblem:
         envelope: bool = False,
         face_reach: int | None = None,
         point_normals: NDArray[np.float64] | None = None,
+        joints: Sequence[Joint] = (),
     ) -> None:
         self.geom = geom
+        # ``joints``: their values (offsets from ``geom.joint_values``) are parameters too. A point
+        # whose closest face is on a part a joint moves gets d(residual)/dq from the part's motion
+        # (rotation about / translation along the joint axis, in the model frame).
+        self.joints = list(joints)
+        self.n_base = 4 if uniform_scale else 6
+        self.kin = _Kinematics(geom, self.joints) if self.joints else None
+        if self.kin is not None and envelope:
+            raise ValueError("joint refinement and the articulation envelope do not combine")
         # ``point_normals`` (observed normals of ``points``): a point whose closest CAD surface faces
         # the other way (the back of a thin door, the inside of a panel) is not explained by it; its
         # residual is at least ``robust_scale`` (``_point_terms``). Without this, a model shifted
@@ -618,6 +687,7 @@ class AlignmentProblem:
         self._cache: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self.samples = np.zeros((0, 3))
         self.sample_normals = np.zeros((0, 3))
+        self.sample_idx = np.zeros(0, dtype=np.int64)
         # Model samples the CAD -> observed term draws from (their count sets the area per sample).
         pool = geom.self_visible & geom.static_mask if self.envelope else geom.self_visible
         # Each drawn sample stands for (pool area) / (drawn samples) in ``visible_samples``' test.
@@ -629,6 +699,7 @@ class AlignmentProblem:
                 idx = rng.choice(idx, model_samples, replace=False)
             self.samples = geom.samples[idx]
             self.sample_normals = geom.normals[idx]
+            self.sample_idx = idx
         self.sample_weight = np.sqrt(len(points) / max(len(self.samples), 1))
         self.visible_mask: NDArray[np.bool_] | None = None
 
@@ -651,10 +722,23 @@ class AlignmentProblem:
         head = np.array([float(np.mean(ls))]) if self.uniform else ls
         return np.r_[head, 0.0, center_xy[0], center_xy[1]]
 
+    def joint_values(self, x: NDArray[np.float64]) -> dict[str, float]:
+        """Joint values at parameters ``x`` (clipped into the limits); the geometry's own without joints."""
+        values = dict(self.geom.joint_values)
+        for k, j in enumerate(self.joints):
+            values[j.name] = j.clip(values.get(j.name, j.zero_value) + float(x[self.n_base + k]))
+        return values
+
     # ------------------------------------------------------------------ derivatives of a posed point
     def _dq(self, m_centered: NDArray[np.float64], q_rel: NDArray[np.float64], s: NDArray[np.float64],
-            a: NDArray[np.float64]) -> NDArray[np.float64]:
-        """d(posed point)/d(params): (N, 3, P) for model points ``m - c_m`` and ``q - t_center``."""
+            a: NDArray[np.float64], conf: _Configuration | None = None,
+            links: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+        """d(posed point)/d(params): (N, 3, P) for model points ``m - c_m`` and ``q - t_center``.
+
+        With joints, ``conf`` and ``links`` (the link each point is on) give the joint columns: a
+        point on a part joint k moves moves by ``axis x (m - origin)`` (revolute) or ``axis``
+        (prismatic) per unit of joint value, in the model frame, then scaled and rotated.
+        """
         n = len(m_centered)
         cols = []
         # d/d log s_j: A[:, j] s_j (m_j - c_j) + e_z |R0[2, j]| s_j size_j / 2 (support constraint).
@@ -670,16 +754,38 @@ class AlignmentProblem:
         ex[:, 0, 0] = 1.0
         ex[:, 1, 1] = 1.0
         cols.append(ex)
+        if self.kin is not None:
+            assert conf is not None and links is not None
+            m = m_centered + self.geom.center
+            dj = np.zeros((n, 3, len(self.joints)))
+            for k, j in enumerate(self.joints):
+                on = self.kin.moves[k, links]
+                if not np.any(on):
+                    continue
+                if j.type == "prismatic":
+                    dm = np.broadcast_to(conf.axes[k], (int(on.sum()), 3))
+                else:
+                    dm = np.cross(conf.axes[k], m[on] - conf.origins[k])
+                dj[on, :, k] = (dm * s) @ a.T
+            cols.append(dj)
         return np.concatenate(cols, axis=2)
 
     def _point_terms(
         self, scene: o3d.t.geometry.RaycastingScene, p_model: NDArray[np.float64], s: NDArray[np.float64],
         a: NDArray[np.float64], t: NDArray[np.float64], subset: NDArray[np.int64] | None = None,
+        conf: _Configuration | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Signed map-frame distances of the points (``subset`` of them) to a surface given in the
         model frame (``p_model``: those points in the model frame), and d/dx."""
         c_m = self.geom.center
-        cp, cn = closest_points(scene, p_model)
+        links = None
+        if conf is not None:
+            res = scene.compute_closest_points(o3c.Tensor(np.ascontiguousarray(p_model, dtype=np.float32)))
+            cp = res["points"].numpy().astype(np.float64)
+            cn = res["primitive_normals"].numpy().astype(np.float64)
+            links = conf.face_link[res["primitive_ids"].numpy().astype(np.int64)]
+        else:
+            cp, cn = closest_points(scene, p_model)
         mc = cp - c_m
         q = (mc * s) @ a.T + t
         nq = (cn / s) @ a.T
@@ -690,7 +796,7 @@ class AlignmentProblem:
         d = np.linalg.norm(diff, axis=1)
         sign = np.where(np.einsum("ij,ij->i", diff, nq) < 0.0, -1.0, 1.0)
         v = np.where((d > 1e-9)[:, None], diff * (sign / np.maximum(d, EPS))[:, None], nq)
-        r, jac = sign * d, -np.einsum("ni,nip->np", v, self._dq(mc, q - t, s, a))
+        r, jac = sign * d, -np.einsum("ni,nip->np", v, self._dq(mc, q - t, s, a, conf, links))
         if normals is not None:
             # Opposite normals: residual sqrt(d^2 + tau^2) (smooth, >= tau), pulling only weakly.
             wrong = np.einsum("ij,ij->i", nq, normals) < 0.0
@@ -710,9 +816,10 @@ class AlignmentProblem:
         tz = self.bottom_z + 0.5 * float(self.up_row @ (s * self.geom.size))
         t = np.array([x[off + 1], x[off + 2], tz])
         c_m = self.geom.center
+        conf = self.kin.at(self.joint_values(x)) if self.kin is not None else None
         # point -> CAD: map into the canonical frame, closest point there, map back (true distance).
         p_model = ((self.points - t) @ a) / s + c_m
-        r, jac = self._point_terms(self.geom.scene, p_model, s, a, t)
+        r, jac = self._point_terms(self.geom.scene if conf is None else conf.scene, p_model, s, a, t, conf=conf)
         far = np.flatnonzero(np.abs(r) > self.margin) if self.envelope else np.zeros(0, dtype=np.int64)
         if len(far):
             assert self.geom.envelope is not None
@@ -730,9 +837,15 @@ class AlignmentProblem:
         # CAD -> observed surfels (ours): normal and tangential-excess residuals per visible sample.
         if self.prepared is not None and len(self.samples):
             prep = self.prepared
-            ms = self.samples - c_m
+            samples, sample_normals, sample_links = self.samples, self.sample_normals, None
+            if conf is not None:  # the samples move with their links
+                sample_links = self.geom.sample_links[self.sample_idx]
+                rot, trans = conf.poses[sample_links, :3, :3], conf.poses[sample_links, :3, 3]
+                samples = np.einsum("nij,nj->ni", rot, self.geom.link_samples[self.sample_idx]) + trans
+                sample_normals = np.einsum("nij,nj->ni", rot, self.geom.link_normals[self.sample_idx])
+            ms = samples - c_m
             y = (ms * s) @ a.T + t
-            ny = (self.sample_normals / s) @ a.T
+            ny = (sample_normals / s) @ a.T
             ny /= np.maximum(np.linalg.norm(ny, axis=1, keepdims=True), EPS)
             if self.visible_mask is None:  # fixed for one fit: keeps the residual vector's meaning
                 area = self.geom.sample_area * self.pool_count / max(len(ny), 1) * float(np.prod(s)) ** (2 / 3)
@@ -753,7 +866,7 @@ class AlignmentProblem:
                 et = e - en[:, None] * no
                 etn = np.linalg.norm(et, axis=1)
                 g = np.maximum(etn - prep.surfel_radius, 0.0)
-                dy = self._dq(ms[vis], ys - t, s, a)
+                dy = self._dq(ms[vis], ys - t, s, a, conf, None if sample_links is None else sample_links[vis])
                 j_n = -np.einsum("ni,nip->np", no, dy)
                 tdir = et / np.maximum(etn, EPS)[:, None]
                 j_g = -np.einsum("ni,nip->np", tdir, dy) * (g > 0.0)[:, None]

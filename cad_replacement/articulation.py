@@ -5,10 +5,11 @@ would then be closed in the interactive scene, and a robot would plan against th
 Here every movable joint's value is estimated after alignment: with the model's pose and scale
 fixed, each joint is swept over its range (a coarse 1-D grid, then finer grids around the best
 value down to 0.5 degrees / 2 mm, and a parabolic step) and the value minimising the robust
-distance of the observed points to the posed model is kept. Only the points the rest of the model does not explain enter a
-joint's cost, and every point counts with ``min(distance to the moving part, distance to the
-rest)``, so points of other parts never pull a door. All distances use rigid link frames of the
-*scaled* model (``CadModel.scaled``), so they are exact; queries are batched over the grid.
+distance of the observed points to the posed model is kept. Only the points the rest of the model
+does not explain enter a joint's cost, and every point counts with ``min(distance to the moving
+part, distance to the rest)``, so points of other parts never pull a door. All distances use rigid
+link frames of the *scaled* model (``CadModel.scaled``), so they are exact; queries are batched
+over the grid.
 """
 
 from __future__ import annotations

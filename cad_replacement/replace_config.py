@@ -116,7 +116,7 @@ class CadReplacementConfig:
     joint_snap_shift: float = 0.04
     #: Ours, articulated models: rounds of (rigid refit at the estimated joint values, joint
     #: estimation) after the envelope fit, and the LM evaluations of each refit.
-    refine_rounds: int = 2
+    refine_rounds: int = 1
     refine_max_nfev: int = 15
 
     #: Random seed of every subsample (deterministic results).

@@ -330,38 +330,44 @@ def _align_ours(
         }
         # Articulated models: screening fitted the body through the articulation envelope (open
         # doors and pulled-out drawers neither drag it nor count as clutter). The joints are
-        # estimated at the screened pose, the full fit runs against the model at those joint values
-        # (exact configuration: the door's points and the inside it uncovers count), and the joints
-        # are estimated again; while they move, the pose is refitted (``refine_rounds``).
+        # estimated at the screened pose (1-D searches, ``articulation``); the full fit then runs
+        # against the model at those joint values (exact configuration: the door's points and the
+        # inside it uncovers count) with the open joints' values as parameters too (pose and joints
+        # refined together), and the joints are searched again from the refined pose; while that
+        # search moves them, the joint fit is repeated (``refine_rounds``).
         # Rigid models: one fit, Eq. (11) with dense residuals.
         art = None
-        fit_geom = geom
+        values: dict[str, float] = {}
         if geom.model.movable_joints:
             ta = time.perf_counter()
             pl0 = AlignmentProblem(geom, m.rotation, bottom, prepared.fit_points, cfg).placement(x)
             art = estimate_joint_values(prepared.fit_points, geom.bare_model.scaled(pl0.scale), pl0.pose, cfg)
             t_art += time.perf_counter() - ta
-            fit_geom = geom.articulated(art.values)
+            values = art.values
         nfev2 = 0
         max_nfev = cfg.align_max_nfev
+        n_base = len(x)
         for _ in range(1 + (cfg.refine_rounds if art is not None else 0)):
-            before = art.values if art is not None else {}
+            open_joints = [j for j in geom.model.movable_joints if abs(values[j.name] - j.zero_value) > 1e-9]
             prob = AlignmentProblem(
-                fit_geom, m.rotation, bottom, prepared.fit_points, cfg, point_normals=prepared.fit_normals, **kw
+                geom.articulated(values) if values else geom, m.rotation, bottom, prepared.fit_points, cfg,
+                point_normals=prepared.fit_normals, joints=open_joints, **kw,
             )
-            x, cost2, nfev3 = prob.solve(x, max_nfev)
+            xj, cost2, nfev3 = prob.solve(np.r_[x[:n_base], np.zeros(len(open_joints))], max_nfev)
+            x = xj[:n_base]
             nfev2 += nfev3
             max_nfev = cfg.refine_max_nfev
             pl = prob.placement(x)
             scaled = geom.bare_model.scaled(pl.scale)
             if art is None:
                 break
+            fitted = prob.joint_values(xj)
             ta = time.perf_counter()
             art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg)
             t_art += time.perf_counter() - ta
-            if not _joints_moved(scaled, before, art.values):
+            values = art.values
+            if not _joints_moved(scaled, fitted, values):
                 break
-            fit_geom = geom.articulated(art.values)
         values = art.values if art is not None else scaled.zero_configuration()
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
         score2 = ae.ae * _selection_factor(m, cfg)

@@ -145,7 +145,7 @@ def test_pulled_out_drawer_is_estimated(seed: int, library: SeededLibrary) -> No
 
 @pytest.mark.parametrize("seed", [11, 12, 13])
 def test_both_doors_open_are_estimated(seed: int, library: SeededLibrary) -> None:
-    model, doors, est = _replace_articulated("cabinet", "revolute", [np.radians(40.0)] * 2, seed, library)
+    _, doors, est = _replace_articulated("cabinet", "revolute", [np.radians(40.0)] * 2, seed, library)
     for d in doors:
         assert abs(np.degrees(est[d.name]) - 40.0) <= 10.0, est
 
