@@ -114,9 +114,10 @@ class CadReplacementConfig:
     #: as closed: they are within what a pose/scale error of a few mm explains.
     joint_snap_angle: float = 0.0873  # 5 degrees
     joint_snap_shift: float = 0.04
-    #: Ours, articulated models: rounds of (rigid refit at the estimated joint values, joint
-    #: estimation) after the envelope fit, and the LM evaluations of each refit.
-    refine_rounds: int = 1
+    #: Ours, articulated models: extra rounds of (joint fit of pose and open joints, 1-D joint
+    #: search) after the first, taken while the joints or the pose still move, and the LM
+    #: evaluations of each extra round.
+    refine_rounds: int = 2
     refine_max_nfev: int = 15
 
     #: Random seed of every subsample (deterministic results).

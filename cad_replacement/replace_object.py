@@ -259,6 +259,13 @@ def _joints_moved(model: CadModel, before: dict[str, float], after: dict[str, fl
     return False
 
 
+def _pose_moved(prob: AlignmentProblem, x0: NDArray[np.float64], x1: NDArray[np.float64]) -> bool:
+    """Whether a fit moved the model by more than ``REFIT_SHIFT`` or turned it by ``REFIT_ANGLE``."""
+    p0, p1 = prob.placement(x0), prob.placement(x1)
+    turn = abs((p1.yaw - p0.yaw + np.pi) % (2.0 * np.pi) - np.pi)
+    return bool(turn > REFIT_ANGLE or np.linalg.norm(p1.translation - p0.translation) > REFIT_SHIFT)
+
+
 def _selection_factor(m: MatchCandidate, cfg: CadReplacementConfig) -> float:
     return (1.0 + cfg.front_ae_factor * m.d_front) * (1.0 + cfg.class_ae_factor * m.d_class)
 
@@ -353,7 +360,8 @@ def _align_ours(
                 geom.articulated(values) if values else geom, m.rotation, bottom, prepared.fit_points, cfg,
                 point_normals=prepared.fit_normals, joints=open_joints, **kw,
             )
-            xj, cost2, nfev3 = prob.solve(np.r_[x[:n_base], np.zeros(len(open_joints))], max_nfev)
+            x_start = x[:n_base].copy()
+            xj, cost2, nfev3 = prob.solve(np.r_[x_start, np.zeros(len(open_joints))], max_nfev)
             x = xj[:n_base]
             nfev2 += nfev3
             max_nfev = cfg.refine_max_nfev
@@ -366,7 +374,9 @@ def _align_ours(
             art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg)
             t_art += time.perf_counter() - ta
             values = art.values
-            if not _joints_moved(scaled, fitted, values):
+            # Another round when the joints moved, or when the pose moved away from where the fit
+            # chose the CAD samples the observation could have seen (the mask is fixed per fit).
+            if not _joints_moved(scaled, fitted, values) and not _pose_moved(prob, x_start, x):
                 break
         values = art.values if art is not None else scaled.zero_configuration()
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
