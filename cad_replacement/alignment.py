@@ -22,8 +22,22 @@ Levenberg-Marquardt (``scipy.optimize.least_squares(method="lm")``) and an analy
   observation's sampling radius around each point), so a model bigger than the object is pulled in
   instead of fitting the points equally well.
 
-Ours passes the point residuals through a soft-L1 function (bounded influence of an open door or
-clutter) and adds a weak prior towards isotropic scale.
+Ours passes the point residuals through a soft-L1 function (bounded influence of clutter) and
+adds a weak prior towards isotropic scale. For articulated models (the paper exports them closed,
+Sec. 4.3 fits ``T o y`` with ``y`` at rest) ours extends Eq. (11) to ``T o y(q)``:
+
+* articulation envelope (``envelope_mesh``, screening): a point may also be explained, at the
+  price ``envelope_margin``, by a moving part at any joint value, so an open door neither drags the
+  body's yaw nor counts as clutter, and only static links measure missing data;
+* joint refinement (``joints=``): the values of the open joints are LM parameters next to the
+  pose, with analytic columns from the parts' motion about/along their axes;
+* a point whose closest CAD face has the opposite normal (the back of a 5 cm door, the inside of a
+  panel) costs at least ``robust_scale``: otherwise a model shifted by a door's thickness fits
+  about as well as the right one (``point_normals``).
+
+The CAD -> observation samples of the fits and of the AE count where the observation covers their
+direction at about their offset (``FaceAreas``): shelves seen through an open fridge door make +z
+"seen", but not the fridge's top above the camera.
 
 AE (reported, and ours' selection criterion) is the RMS of both directions; the paper's AE (Sec.
 4.3) is the RMS of the first one only, kept as ``ae_points``.
@@ -48,6 +62,7 @@ from scipy.spatial import cKDTree
 from cad_replacement.cad.library import CadEntry
 from cad_replacement.cad.model import CadModel, Link
 from recon_core.geometry.box import GravityBox
+from recon_core.geometry.transforms import as_mesh
 from recon_core.kinematic_tree import Joint
 
 from .observation import ObjectObservation
@@ -176,7 +191,7 @@ def envelope_mesh(model: CadModel) -> trimesh.Trimesh:
                 m = model.link(name).mesh.copy()
                 m.apply_transform(at[name])
                 parts.append(m)
-    return trimesh.util.concatenate(parts) if parts else trimesh.Trimesh()
+    return as_mesh(trimesh.util.concatenate(parts)) if parts else trimesh.Trimesh()
 
 
 @dataclass(eq=False)

@@ -6,11 +6,16 @@ as a dense fit), articulation and selection, for either method of ``CadReplaceme
 * ``"paper"``: all 24 orientations per model; L1 box term + Hungarian plane term; every top-k
   candidate gets one dense LM (uniform scale, yaw, translation; Eq. 11) from its box start on all
   points; the candidate with the smallest one-sided AE (Sec. 4.3) wins; joints stay closed.
-* ``"ours"``: gravity-restricted orientations + front and class terms; each top-k candidate is
-  screened with a short two-sided robust LM on a small subsample (coarse stage: the 4 yaws of each
-  model compete on data, so the dense fit never starts in a half-turn minimum); the best
-  ``screen_keep`` get the full fit (anisotropic scale) and joint estimation; the winner has the
-  smallest two-sided AE, lightly weighted by the front and class terms.
+* ``"ours"``: gravity-restricted orientations + front and class terms, box frames from the
+  dominant vertical planes (an open door tilts the observed box, the body's front and sides do
+  not); each top-k candidate is screened with a short two-sided robust LM on a small subsample
+  (coarse stage: the 4 yaws of each model compete on data, so the dense fit never starts in a
+  half-turn minimum), articulated models through their articulation envelope (an open door or a
+  pulled-out drawer does not drag the body). The best ``screen_keep`` get joint estimation at the
+  screened pose (``articulation``), the full fit (anisotropic scale) at those joint values with
+  the open joints refined together with the pose, and the joints searched again; the winner has
+  the smallest two-sided AE at its estimated joint values, lightly weighted by the front and class
+  terms.
 
 The global physical check of Sec. 4.4 consumes ``ObjectReplacement.candidates`` (ranked backups).
 """
@@ -330,11 +335,6 @@ def _align_ours(
             results.append(CandidateResult(m, pl, nan_ae, float(score) * 10.0, {}, "screen", cost, nfev))
             continue
         full_count[m.entry.key] = full_count.get(m.entry.key, 0) + 1
-        kw = {
-            "prepared": prepared, "anisotropy_weight": cfg.anisotropy_weight, "height_target": height,
-            "height_weight": cfg.height_weight, "model_samples": cfg.align_model_samples,
-            "face_reach": cfg.fit_face_reach,
-        }
         # Articulated models: screening fitted the body through the articulation envelope (open
         # doors and pulled-out drawers neither drag it nor count as clutter). The joints are
         # estimated at the screened pose (1-D searches, ``articulation``); the full fit then runs
@@ -358,7 +358,9 @@ def _align_ours(
             open_joints = [j for j in geom.model.movable_joints if abs(values[j.name] - j.zero_value) > 1e-9]
             prob = AlignmentProblem(
                 geom.articulated(values) if values else geom, m.rotation, bottom, prepared.fit_points, cfg,
-                point_normals=prepared.fit_normals, joints=open_joints, **kw,
+                prepared=prepared, anisotropy_weight=cfg.anisotropy_weight, height_target=height,
+                height_weight=cfg.height_weight, model_samples=cfg.align_model_samples,
+                face_reach=cfg.fit_face_reach, point_normals=prepared.fit_normals, joints=open_joints,
             )
             x_start = x[:n_base].copy()
             xj, cost2, nfev3 = prob.solve(np.r_[x_start, np.zeros(len(open_joints))], max_nfev)
@@ -369,14 +371,14 @@ def _align_ours(
             scaled = geom.bare_model.scaled(pl.scale)
             if art is None:
                 break
-            fitted = prob.joint_values(xj)
+            q_fit = prob.joint_values(xj)
             ta = time.perf_counter()
             art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg)
             t_art += time.perf_counter() - ta
             values = art.values
             # Another round when the joints moved, or when the pose moved away from where the fit
             # chose the CAD samples the observation could have seen (the mask is fixed per fit).
-            if not _joints_moved(scaled, fitted, values) and not _pose_moved(prob, x_start, x):
+            if not _joints_moved(scaled, q_fit, values) and not _pose_moved(prob, x_start, x):
                 break
         values = art.values if art is not None else scaled.zero_configuration()
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
