@@ -376,9 +376,12 @@ def _align_ours(
             art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg)
             t_art += time.perf_counter() - ta
             values = art.values
-            # Another round when the joints moved, or when the pose moved away from where the fit
-            # chose the CAD samples the observation could have seen (the mask is fixed per fit).
-            if not _joints_moved(scaled, q_fit, values) and not _pose_moved(prob, x_start, x):
+            # Another round when the joints moved, or, with parts open (their inside and their own
+            # occlusions make the choice pose-dependent), when the pose moved away from where the
+            # fit chose the CAD samples the observation could have seen (fixed per fit).
+            if _joints_moved(scaled, q_fit, values):
+                continue
+            if not (open_joints and _pose_moved(prob, x_start, x)):
                 break
         values = art.values if art is not None else scaled.zero_configuration()
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
