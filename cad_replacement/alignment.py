@@ -22,8 +22,22 @@ Levenberg-Marquardt (``scipy.optimize.least_squares(method="lm")``) and an analy
   observation's sampling radius around each point), so a model bigger than the object is pulled in
   instead of fitting the points equally well.
 
-Ours passes the point residuals through a soft-L1 function (bounded influence of an open door or
-clutter) and adds a weak prior towards isotropic scale.
+Ours passes the point residuals through a soft-L1 function (bounded influence of clutter) and
+adds a weak prior towards isotropic scale. For articulated models (the paper exports them closed,
+Sec. 4.3 fits ``T o y`` with ``y`` at rest) ours extends Eq. (11) to ``T o y(q)``:
+
+* articulation envelope (``envelope_mesh``, screening): a point may also be explained, at the
+  price ``envelope_margin``, by a moving part at any joint value, so an open door neither drags the
+  body's yaw nor counts as clutter, and only static links measure missing data;
+* joint refinement (``joints=``): the values of the open joints are LM parameters next to the
+  pose, with analytic columns from the parts' motion about/along their axes;
+* a point whose closest CAD face has the opposite normal (the back of a 5 cm door, the inside of a
+  panel) costs at least ``robust_scale``: otherwise a model shifted by a door's thickness fits
+  about as well as the right one (``point_normals``).
+
+The CAD -> observation samples of the fits and of the AE count where the observation covers their
+direction at about their offset (``FaceAreas``): shelves seen through an open fridge door make +z
+"seen", but not the fridge's top above the camera.
 
 AE (reported, and ours' selection criterion) is the RMS of both directions; the paper's AE (Sec.
 4.3) is the RMS of the first one only, kept as ``ae_points``.
@@ -31,9 +45,10 @@ AE (reported, and ours' selection criterion) is the RMS of both directions; the 
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,8 +60,10 @@ from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
 from cad_replacement.cad.library import CadEntry
-from cad_replacement.cad.model import CadModel
+from cad_replacement.cad.model import CadModel, Link
 from recon_core.geometry.box import GravityBox
+from recon_core.geometry.transforms import as_mesh
+from recon_core.kinematic_tree import Joint
 
 from .observation import ObjectObservation
 from .replace_config import CadReplacementConfig
@@ -58,6 +75,15 @@ RAY_OFFSET = 1e-3
 PARTIAL_MEAN_NORMAL = 0.3
 #: Distance (m) of the virtual orthographic camera used for occlusion of partial observations.
 VIEW_DISTANCE = 20.0
+#: Thickness (m) of the offset slabs of ``FaceAreas``: a CAD face counts as seen when the
+#: observation covers its direction within about one slab of its offset.
+FACE_SLAB = 0.05
+#: Articulation envelope: largest step (m) of a moving part's farthest point between two swept
+#: copies, and largest angular step (rad) of a revolute sweep.
+SWEEP_STEP = 0.08
+SWEEP_MAX_ANGLE = np.radians(15.0)
+#: Most swept copies of one joint's subtree in the envelope.
+SWEEP_MAX_COPIES = 16
 
 
 def rot_z(angle: float) -> NDArray[np.float64]:
@@ -98,6 +124,76 @@ def closest_points(
     return res["points"].numpy().astype(np.float64), res["primitive_normals"].numpy().astype(np.float64)
 
 
+def joint_subtree(model: CadModel, joint: Joint) -> list[str]:
+    """Links moved by ``joint``: its child and everything hanging below it."""
+    children: dict[str, list[str]] = {}
+    for j in model.joints:
+        children.setdefault(j.parent, []).append(j.child)
+    out, stack = [], [joint.child]
+    while stack:
+        link = stack.pop()
+        out.append(link)
+        stack.extend(children.get(link, []))
+    return out
+
+
+def moving_links(model: CadModel) -> set[str]:
+    """Links that move with at least one movable joint (the rest is the static body)."""
+    out: set[str] = set()
+    for j in model.movable_joints:
+        out.update(joint_subtree(model, j))
+    return out
+
+
+def sweep_values(model: CadModel, joint: Joint, poses: Mapping[str, NDArray[np.float64]]) -> NDArray[np.float64]:
+    """Joint values at which the envelope holds a copy of the joint's subtree (limits included).
+
+    Consecutive copies are at most ``SWEEP_STEP`` apart at the subtree's farthest point from a
+    revolute axis (and ``SWEEP_MAX_ANGLE`` apart), ``SWEEP_STEP`` apart along a prismatic axis.
+    """
+    lo, hi = (joint.lower, joint.upper) if joint.type != "continuous" else (-np.pi, np.pi)
+    if joint.type == "prismatic":
+        step = SWEEP_STEP
+    else:
+        frame = poses[joint.parent] @ joint.origin
+        radius = 0.0
+        for name in joint_subtree(model, joint):
+            v = np.asarray(model.link(name).mesh.vertices, dtype=np.float64)
+            if len(v) == 0:
+                continue
+            local = (v @ poses[name][:3, :3].T + poses[name][:3, 3] - frame[:3, 3]) @ frame[:3, :3]
+            off = local - np.outer(local @ joint.axis, joint.axis)
+            radius = max(radius, float(np.linalg.norm(off, axis=1).max()))
+        step = min(SWEEP_MAX_ANGLE, SWEEP_STEP / max(radius, EPS))
+    n = int(np.clip(np.ceil((hi - lo) / step) + 1, 2, SWEEP_MAX_COPIES))
+    return np.linspace(lo, hi, n)
+
+
+def envelope_mesh(model: CadModel) -> trimesh.Trimesh:
+    """Every movable joint's subtree swept over the joint's range, closed copy excluded (model frame).
+
+    With the closed model it forms the articulation envelope: a point on a door standing open by
+    any angle, or on a drawer pulled out by any length, lies on (or within ``SWEEP_STEP`` of) one
+    of the copies. Empty for a model without moving geometry.
+    """
+    poses = model.link_poses()
+    zero = model.zero_configuration()
+    parts = []
+    for joint in model.movable_joints:
+        sub = [n for n in joint_subtree(model, joint) if len(model.link(n).mesh.faces)]
+        if not sub:
+            continue
+        for q in sweep_values(model, joint, poses):
+            if abs(q - joint.zero_value) < 1e-9:
+                continue
+            at = model.link_poses({**zero, joint.name: float(q)})
+            for name in sub:
+                m = model.link(name).mesh.copy()
+                m.apply_transform(at[name])
+                parts.append(m)
+    return as_mesh(trimesh.util.concatenate(parts)) if parts else trimesh.Trimesh()
+
+
 @dataclass(eq=False)
 class ModelGeometry:
     """Everything alignment needs about one CAD model, built once and cached by model key.
@@ -107,6 +203,11 @@ class ModelGeometry:
     a ray leaving the sample along its normal escapes the model (inner faces, the inside of a closed
     cabinet, faces pressed against each other are never seen by a camera); ``sample_links`` and
     ``link_samples`` (the same samples in their link frames) let articulation re-pose them.
+
+    Articulated models also carry ``envelope`` (raycasting scene of ``envelope_mesh``: the moving
+    parts swept over their joint ranges) and ``static_samples`` (samples on links no joint moves);
+    ``joint_values`` is the configuration the geometry was built at (see ``articulated``; the box
+    ``center``/``size`` always refer to the closed configuration).
     """
 
     key: str
@@ -123,6 +224,61 @@ class ModelGeometry:
     link_names: tuple[str, ...]
     sample_area: float = 0.0  # model surface area (m^2) each sample stands for, closed configuration
     build_time_s: float = 0.0
+    envelope: o3d.t.geometry.RaycastingScene | None = None
+    static_samples: NDArray[np.bool_] | None = None
+    joint_values: dict[str, float] = field(default_factory=dict)
+    _bare: CadModel | None = None
+
+    @property
+    def bare_model(self) -> CadModel:
+        """The model without collision shapes and inertials: meshes and kinematics only, so
+        ``scaled`` copies for joint estimation and the AE cost a fraction of a full one."""
+        if self._bare is None:
+            links = tuple(Link(lk.name, lk.mesh, lk.color) for lk in self.model.links)
+            self._bare = dataclasses.replace(self.model, links=links)
+        return self._bare
+
+    @property
+    def static_mask(self) -> NDArray[np.bool_]:
+        return self.static_samples if self.static_samples is not None else np.ones(len(self.samples), dtype=bool)
+
+    def articulated(self, values: Mapping[str, float]) -> ModelGeometry:
+        """This geometry at joint values ``values``: scene, samples, normals and self-visibility.
+
+        The same surface samples (``link_samples``) are re-posed, so per-sample areas and link
+        indices stay valid; ``center``/``size`` stay those of the closed model (the placement's
+        parameters keep their meaning). No envelope: the configuration is given.
+        """
+        vals = {k: float(v) for k, v in values.items()}
+        zero = self.model.zero_configuration()
+        if all(abs(vals.get(k, z) - z) < 1e-9 for k, z in zero.items()):
+            return self
+        t0 = time.perf_counter()
+        poses = self.model.link_poses(vals)
+        rot = np.stack([poses[n][:3, :3] for n in self.link_names])[self.sample_links]
+        trans = np.stack([poses[n][:3, 3] for n in self.link_names])[self.sample_links]
+        pts = np.einsum("nij,nj->ni", rot, self.link_samples) + trans
+        nrm = np.einsum("nij,nj->ni", rot, self.link_normals)
+        scene = raycasting_scene(self.model.mesh(vals))
+        rays = np.c_[pts + RAY_OFFSET * nrm, nrm].astype(np.float32)
+        hit = scene.cast_rays(o3c.Tensor(rays))["t_hit"].numpy()
+        return ModelGeometry(
+            key=self.key,
+            model=self.model,
+            scene=scene,
+            center=self.center,
+            size=self.size,
+            samples=pts,
+            normals=nrm,
+            self_visible=~np.isfinite(hit),
+            sample_links=self.sample_links,
+            link_samples=self.link_samples,
+            link_normals=self.link_normals,
+            link_names=self.link_names,
+            sample_area=self.sample_area,
+            build_time_s=time.perf_counter() - t0,
+            joint_values=vals,
+        )
 
     @classmethod
     def build(cls, key: str, model: CadModel, samples: int = 1200, seed: int = 0) -> ModelGeometry:
@@ -156,6 +312,12 @@ class ModelGeometry:
         rays = np.c_[pts + RAY_OFFSET * nrm, nrm].astype(np.float32)
         hit = scene.cast_rays(o3c.Tensor(rays))["t_hit"].numpy()
         lo, hi = whole.bounds
+        envelope, static = None, None
+        swept = envelope_mesh(model) if model.movable_joints else trimesh.Trimesh()
+        if len(swept.faces):
+            envelope = raycasting_scene(swept)
+            moving = moving_links(model)
+            static = np.array([names[i] not in moving for i in range(len(names))])[li]
         return cls(
             key=key,
             model=model,
@@ -171,6 +333,9 @@ class ModelGeometry:
             link_names=names,
             sample_area=float(areas.sum()) / max(len(pts), 1),
             build_time_s=time.perf_counter() - t0,
+            envelope=envelope,
+            static_samples=static,
+            joint_values=model.zero_configuration(),
         )
 
 
@@ -211,9 +376,14 @@ class PreparedObservation:
     tree: cKDTree
     surfel_radius: float
     bin_area: NDArray[np.float64]  # (B,) observed surface area (m^2) per direction bin
+    face_area: FaceAreas | None  # observed area per (direction bin, offset slab); None: no normals
     view_dir: NDArray[np.float64] | None  # main viewing direction of a partial observation (None: all around)
     fit_points: NDArray[np.float64]  # full-fit subsample
     screen_points: NDArray[np.float64]
+    # Normals of the fit/screen subsamples when the observation came with normals (None otherwise:
+    # estimated normals are oriented by a guess and would mislead the normal test of the fits).
+    fit_normals: NDArray[np.float64] | None = None
+    screen_normals: NDArray[np.float64] | None = None
 
     @classmethod
     def build(cls, obs: ObjectObservation, cfg: CadReplacementConfig) -> PreparedObservation:
@@ -241,17 +411,26 @@ class PreparedObservation:
         radius = 2.08 * spacing
         # Area one surfel stands for at this density: 1 / rho = pi m^2 / ln 2.
         area_per_point = np.pi * spacing * spacing / np.log(2.0)
-        seen = observed_area_per_bin(nrm_s, area_per_point * len(pts) / max(len(pts_s), 1))
+        surfel_area = area_per_point * len(pts) / max(len(pts_s), 1)
+        seen = observed_area_per_bin(nrm_s, surfel_area)
+        valid = np.linalg.norm(nrm_s, axis=1) > 0.5
+        faces = FaceAreas.build(nrm_s[valid], pts_s[valid], surfel_area) if np.any(valid) else None
         n_fit = min(cfg.align_points, len(pts))
-        fit = pts[rng.choice(len(pts), n_fit, replace=False)] if len(pts) > n_fit else pts
+        i_fit = rng.choice(len(pts), n_fit, replace=False) if len(pts) > n_fit else np.arange(len(pts))
+        fit = pts[i_fit]
         n_scr = min(cfg.screen_points, len(fit))
-        scr = fit[rng.choice(len(fit), n_scr, replace=False)] if len(fit) > n_scr else fit
+        i_scr = i_fit[rng.choice(len(fit), n_scr, replace=False)] if len(fit) > n_scr else i_fit
+        scr = pts[i_scr]
+        given = obs.normals is not None
         # A partial observation's normals lean towards where it was seen from; a scan from all
         # sides averages out. |mean normal| > 0.3 -> partial, seen along that direction.
         mean_n = nrm_s.mean(axis=0) if len(nrm_s) else np.zeros(3)
         mlen = float(np.linalg.norm(mean_n))
         view = mean_n / mlen if mlen > PARTIAL_MEAN_NORMAL else None
-        return cls(obs, pts_ae, nrm_ae, pts_s, nrm_s, tree, radius, seen, view, fit, scr)
+        return cls(
+            obs, pts_ae, nrm_ae, pts_s, nrm_s, tree, radius, seen, faces, view, fit, scr,
+            normals[i_fit] if given else None, normals[i_scr] if given else None,
+        )
 
 
 def estimate_normals(points: NDArray[np.float64], center: NDArray[np.float64], k: int = 16) -> NDArray[np.float64]:
@@ -279,12 +458,51 @@ def observed_area_per_bin(normals: NDArray[np.float64], area_per_point: float) -
     return counts.astype(np.float64) * float(area_per_point)
 
 
+def face_keys(normals: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Key of the (direction bin, offset slab) of oriented points: which face of an object they are on.
+
+    The offset is ``n . p`` (the plane's distance from the map origin along its own normal), cut
+    into slabs of ``FACE_SLAB``; the top of a fridge and the shelves inside it share a direction
+    but not an offset.
+    """
+    b = direction_bin(normals).astype(np.int64)
+    k = np.floor(np.einsum("ij,ij->i", normals, points) / FACE_SLAB).astype(np.int64)
+    return (b << 32) + (k + (1 << 31))
+
+
+@dataclass(frozen=True)
+class FaceAreas:
+    """Surface area per face key (``face_keys``), summed over a key's offset neighbours on lookup."""
+
+    keys: NDArray[np.int64]  # sorted, unique
+    areas: NDArray[np.float64]
+
+    @classmethod
+    def build(cls, normals: NDArray[np.float64], points: NDArray[np.float64], area_per_point: float) -> FaceAreas:
+        keys, counts = np.unique(face_keys(normals, points), return_counts=True)
+        return cls(keys, counts.astype(np.float64) * float(area_per_point))
+
+    def _at(self, q: NDArray[np.int64]) -> NDArray[np.float64]:
+        if len(self.keys) == 0:
+            return np.zeros(len(q))
+        i = np.clip(np.searchsorted(self.keys, q), 0, len(self.keys) - 1)
+        return np.where(self.keys[i] == q, self.areas[i], 0.0)
+
+    def near(self, q: NDArray[np.int64], reach: int = 1) -> NDArray[np.float64]:
+        """Area at each key's direction within ``reach`` slabs of its offset (faces straddle borders)."""
+        return np.sum([self._at(q + k) for k in range(-reach, reach + 1)], axis=0)
+
+
 def visible_samples(
     normals_map: NDArray[np.float64],
     self_visible: NDArray[np.bool_],
     bin_area: NDArray[np.float64],
     sample_area: float,
     min_coverage: float,
+    *,
+    samples_map: NDArray[np.float64] | None = None,
+    face_area: FaceAreas | None = None,
+    face_reach: int = 1,
 ) -> NDArray[np.bool_]:
     """CAD samples the observation could have seen: not self-occluded and on a side it covers.
 
@@ -294,11 +512,23 @@ def visible_samples(
     (``bin_area`` vs. samples x ``sample_area``). The back of a cabinet seen from the front has
     no data and is skipped; its front is seen, so a model wider than the observed front is
     penalised; a few points on a handle's top do not make the whole top face "seen".
+
+    With ``samples_map`` and ``face_area`` (the AE) the same test also holds per face, i.e. per
+    direction and offset (``FaceAreas``): shelves seen through an open fridge door make the +z
+    direction "seen" but not the fridge's top above the camera, and the inside wall of the
+    carcass does not make the outside of the side panel "seen". A face within ``face_reach``
+    slabs (AE: 1, i.e. 5-10 cm) of an observed face of its direction still counts, so a misplaced
+    face is still penalised; fits, whose start poses are rougher, reach further.
     """
     bins = direction_bin(normals_map)
     cad_area = np.bincount(bins[self_visible], minlength=len(DIRECTION_BINS)) * sample_area
     seen = bin_area >= min_coverage * cad_area
-    return self_visible & seen[bins]
+    out = self_visible & seen[bins]
+    if face_area is not None and samples_map is not None and np.any(out):
+        keys = face_keys(normals_map, samples_map)
+        cad_faces = FaceAreas.build(normals_map[self_visible], samples_map[self_visible], sample_area)
+        out &= face_area.near(keys, face_reach) >= min_coverage * cad_faces.near(keys, face_reach)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -341,11 +571,71 @@ def soft_l1(r: NDArray[np.float64], tau: float) -> tuple[NDArray[np.float64], ND
     return rr, deriv
 
 
+@dataclass
+class _Configuration:
+    """A model at some joint values (model frame): scene, link of every face, joint axes."""
+
+    scene: o3d.t.geometry.RaycastingScene
+    face_link: NDArray[np.int64]
+    poses: NDArray[np.float64]  # (L, 4, 4) link poses
+    axes: NDArray[np.float64]  # (K, 3) joint axes
+    origins: NDArray[np.float64]  # (K, 3) points on the joint axes
+
+
+class _Kinematics:
+    """Link meshes as arrays, so a model at new joint values is one transform and one scene build."""
+
+    def __init__(self, geom: ModelGeometry, joints: list[Joint]) -> None:
+        model = geom.model
+        self.model = model
+        self.joints = joints
+        self.names = geom.link_names
+        index = {n: i for i, n in enumerate(self.names)}
+        verts, faces, face_link = [], [], []
+        offset = 0
+        for i, n in enumerate(self.names):
+            mesh = model.link(n).mesh
+            if len(mesh.faces) == 0:
+                continue
+            verts.append(np.asarray(mesh.vertices, dtype=np.float64))
+            faces.append(np.asarray(mesh.faces, dtype=np.int64) + offset)
+            face_link.append(np.full(len(mesh.faces), i))
+            offset += len(mesh.vertices)
+        self.vert_link = np.concatenate([np.full(len(v), fl[0]) for v, fl in zip(verts, face_link, strict=True)])
+        self.verts = np.concatenate(verts)
+        self.faces = np.ascontiguousarray(np.concatenate(faces), dtype=np.uint32)
+        self.face_link = np.concatenate(face_link)
+        # (K, L): which links each joint moves.
+        self.moves = np.zeros((len(joints), len(self.names)), dtype=bool)
+        for k, j in enumerate(joints):
+            self.moves[k, [index[n] for n in joint_subtree(model, j)]] = True
+        self._last: tuple[tuple[float, ...], _Configuration] | None = None
+
+    def at(self, values: dict[str, float]) -> _Configuration:
+        key = tuple(values[j.name] for j in self.joints)
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        lp = self.model.link_poses(values)
+        poses = np.stack([lp[n] for n in self.names])
+        rot, trans = poses[self.vert_link, :3, :3], poses[self.vert_link, :3, 3]
+        v = np.einsum("nij,nj->ni", rot, self.verts) + trans
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3c.Tensor(v.astype(np.float32)), o3c.Tensor(self.faces))
+        frames = [lp[j.parent] @ j.origin for j in self.joints]
+        axes = np.array([f[:3, :3] @ j.axis for f, j in zip(frames, self.joints, strict=True)])
+        origins = np.array([f[:3, 3] for f in frames])
+        conf = _Configuration(scene, self.face_link, poses, axes.reshape(-1, 3), origins.reshape(-1, 3))
+        self._last = (key, conf)
+        return conf
+
+
 class AlignmentProblem:
     """Residuals and analytic Jacobian of the dense fit for one candidate (see module docstring).
 
     Parameters ``x``: ``(log sx, log sy, log sz, dyaw, tx, ty)`` or, with ``uniform_scale``,
-    ``(log s, dyaw, tx, ty)``; ``(tx, ty)`` is the model box centre in the map.
+    ``(log s, dyaw, tx, ty)``; ``(tx, ty)`` is the model box centre in the map. With ``joints``,
+    one offset per joint (rad or m, from ``geom.joint_values``) follows: pose and joint values are
+    then refined together.
     """
 
     def __init__(
@@ -365,8 +655,36 @@ class AlignmentProblem:
         height_target: float | None = None,
         height_weight: float = 0.0,
         round_weight: float = 0.0,
+        envelope: bool = False,
+        face_reach: int | None = None,
+        point_normals: NDArray[np.float64] | None = None,
+        joints: Sequence[Joint] = (),
     ) -> None:
         self.geom = geom
+        # ``joints``: their values (offsets from ``geom.joint_values``) are parameters too. A point
+        # whose closest face is on a part a joint moves gets d(residual)/dq from the part's motion
+        # (rotation about / translation along the joint axis, in the model frame).
+        self.joints = list(joints)
+        self.n_base = 4 if uniform_scale else 6
+        self.kin = _Kinematics(geom, self.joints) if self.joints else None
+        if self.kin is not None and envelope:
+            raise ValueError("joint refinement and the articulation envelope do not combine")
+        # ``point_normals`` (observed normals of ``points``): a point whose closest CAD surface faces
+        # the other way (the back of a thin door, the inside of a panel) is not explained by it; its
+        # residual is at least ``robust_scale`` (``_point_terms``). Without this, a model shifted
+        # by a door's thickness fits the points about as well as the right one.
+        self.point_normals = point_normals
+        # ``face_reach``: the CAD -> observed samples are chosen per face as in the AE, with this
+        # reach in offset slabs (``visible_samples``); None: per direction only.
+        self.face_reach = face_reach
+        # ``envelope``: fit the body whatever the doors and drawers do. A point is explained by the
+        # closed model or, at the price ``envelope_margin``, by a moving part at some other joint
+        # value (``envelope_mesh``): an open door's points neither drag the body towards them nor
+        # count as clutter, while points the body can explain still prefer the body. Only samples
+        # of static links measure missing data (a closed door's front has no points when the door
+        # stands open; the body's sides and top have them either way).
+        self.envelope = envelope and geom.envelope is not None
+        self.margin = cfg.envelope_margin
         self.r0 = np.asarray(base_rotation, dtype=np.float64)
         self.bottom_z = float(bottom_z)
         self.points = points
@@ -390,13 +708,19 @@ class AlignmentProblem:
         self._cache: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self.samples = np.zeros((0, 3))
         self.sample_normals = np.zeros((0, 3))
+        self.sample_idx = np.zeros(0, dtype=np.int64)
+        # Model samples the CAD -> observed term draws from (their count sets the area per sample).
+        pool = geom.self_visible & geom.static_mask if self.envelope else geom.self_visible
+        # Each drawn sample stands for (pool area) / (drawn samples) in ``visible_samples``' test.
+        self.pool_count = int(np.count_nonzero(pool))
         if self.prepared is not None:
             rng = np.random.default_rng(cfg.seed)
-            idx = np.flatnonzero(geom.self_visible)
+            idx = np.flatnonzero(pool)
             if len(idx) > model_samples:
                 idx = rng.choice(idx, model_samples, replace=False)
             self.samples = geom.samples[idx]
             self.sample_normals = geom.normals[idx]
+            self.sample_idx = idx
         self.sample_weight = np.sqrt(len(points) / max(len(self.samples), 1))
         self.visible_mask: NDArray[np.bool_] | None = None
 
@@ -419,10 +743,23 @@ class AlignmentProblem:
         head = np.array([float(np.mean(ls))]) if self.uniform else ls
         return np.r_[head, 0.0, center_xy[0], center_xy[1]]
 
+    def joint_values(self, x: NDArray[np.float64]) -> dict[str, float]:
+        """Joint values at parameters ``x`` (clipped into the limits); the geometry's own without joints."""
+        values = dict(self.geom.joint_values)
+        for k, j in enumerate(self.joints):
+            values[j.name] = j.clip(values.get(j.name, j.zero_value) + float(x[self.n_base + k]))
+        return values
+
     # ------------------------------------------------------------------ derivatives of a posed point
     def _dq(self, m_centered: NDArray[np.float64], q_rel: NDArray[np.float64], s: NDArray[np.float64],
-            a: NDArray[np.float64]) -> NDArray[np.float64]:
-        """d(posed point)/d(params): (N, 3, P) for model points ``m - c_m`` and ``q - t_center``."""
+            a: NDArray[np.float64], conf: _Configuration | None = None,
+            links: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+        """d(posed point)/d(params): (N, 3, P) for model points ``m - c_m`` and ``q - t_center``.
+
+        With joints, ``conf`` and ``links`` (the link each point is on) give the joint columns: a
+        point on a part joint k moves moves by ``axis x (m - origin)`` (revolute) or ``axis``
+        (prismatic) per unit of joint value, in the model frame, then scaled and rotated.
+        """
         n = len(m_centered)
         cols = []
         # d/d log s_j: A[:, j] s_j (m_j - c_j) + e_z |R0[2, j]| s_j size_j / 2 (support constraint).
@@ -438,7 +775,57 @@ class AlignmentProblem:
         ex[:, 0, 0] = 1.0
         ex[:, 1, 1] = 1.0
         cols.append(ex)
+        if self.kin is not None:
+            assert conf is not None and links is not None
+            m = m_centered + self.geom.center
+            dj = np.zeros((n, 3, len(self.joints)))
+            for k, j in enumerate(self.joints):
+                on = self.kin.moves[k, links]
+                if not np.any(on):
+                    continue
+                if j.type == "prismatic":
+                    dm = np.broadcast_to(conf.axes[k], (int(on.sum()), 3))
+                else:
+                    dm = np.cross(conf.axes[k], m[on] - conf.origins[k])
+                dj[on, :, k] = (dm * s) @ a.T
+            cols.append(dj)
         return np.concatenate(cols, axis=2)
+
+    def _point_terms(
+        self, scene: o3d.t.geometry.RaycastingScene, p_model: NDArray[np.float64], s: NDArray[np.float64],
+        a: NDArray[np.float64], t: NDArray[np.float64], subset: NDArray[np.int64] | None = None,
+        conf: _Configuration | None = None,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Signed map-frame distances of the points (``subset`` of them) to a surface given in the
+        model frame (``p_model``: those points in the model frame), and d/dx."""
+        c_m = self.geom.center
+        links = None
+        if conf is not None:
+            res = scene.compute_closest_points(o3c.Tensor(np.ascontiguousarray(p_model, dtype=np.float32)))
+            cp = res["points"].numpy().astype(np.float64)
+            cn = res["primitive_normals"].numpy().astype(np.float64)
+            links = conf.face_link[res["primitive_ids"].numpy().astype(np.int64)]
+        else:
+            cp, cn = closest_points(scene, p_model)
+        mc = cp - c_m
+        q = (mc * s) @ a.T + t
+        nq = (cn / s) @ a.T
+        nq /= np.maximum(np.linalg.norm(nq, axis=1, keepdims=True), EPS)
+        points = self.points if subset is None else self.points[subset]
+        normals = self.point_normals if subset is None or self.point_normals is None else self.point_normals[subset]
+        diff = points - q
+        d = np.linalg.norm(diff, axis=1)
+        sign = np.where(np.einsum("ij,ij->i", diff, nq) < 0.0, -1.0, 1.0)
+        v = np.where((d > 1e-9)[:, None], diff * (sign / np.maximum(d, EPS))[:, None], nq)
+        r, jac = sign * d, -np.einsum("ni,nip->np", v, self._dq(mc, q - t, s, a, conf, links))
+        if normals is not None:
+            # Opposite normals: residual sqrt(d^2 + tau^2) (smooth, >= tau), pulling only weakly.
+            wrong = np.einsum("ij,ij->i", nq, normals) < 0.0
+            if np.any(wrong):
+                rf = np.sqrt(d * d + self.tau * self.tau)
+                jac = np.where(wrong[:, None], jac * (r / rf)[:, None], jac)
+                r = np.where(wrong, rf, r)
+        return r, jac
 
     def _evaluate(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if self._cache_x is not None and np.array_equal(x, self._cache_x):
@@ -450,19 +837,20 @@ class AlignmentProblem:
         tz = self.bottom_z + 0.5 * float(self.up_row @ (s * self.geom.size))
         t = np.array([x[off + 1], x[off + 2], tz])
         c_m = self.geom.center
+        conf = self.kin.at(self.joint_values(x)) if self.kin is not None else None
         # point -> CAD: map into the canonical frame, closest point there, map back (true distance).
         p_model = ((self.points - t) @ a) / s + c_m
-        cp, cn = closest_points(self.geom.scene, p_model)
-        mc = cp - c_m
-        q = (mc * s) @ a.T + t
-        nq = (cn / s) @ a.T
-        nq /= np.maximum(np.linalg.norm(nq, axis=1, keepdims=True), EPS)
-        diff = self.points - q
-        d = np.linalg.norm(diff, axis=1)
-        sign = np.where(np.einsum("ij,ij->i", diff, nq) < 0.0, -1.0, 1.0)
-        r = sign * d
-        v = np.where((d > 1e-9)[:, None], diff * (sign / np.maximum(d, EPS))[:, None], nq)
-        jac = -np.einsum("ni,nip->np", v, self._dq(mc, q - t, s, a))
+        r, jac = self._point_terms(self.geom.scene if conf is None else conf.scene, p_model, s, a, t, conf=conf)
+        far = np.flatnonzero(np.abs(r) > self.margin) if self.envelope else np.zeros(0, dtype=np.int64)
+        if len(far):
+            assert self.geom.envelope is not None
+            # Explained by a moving part at another joint value: sqrt(d^2 + margin^2) (smooth, > margin),
+            # so only points farther than the margin from the closed model need the envelope.
+            r_e, jac_e = self._point_terms(self.geom.envelope, p_model[far], s, a, t, far)
+            r_m = np.sqrt(r_e * r_e + self.margin * self.margin)
+            use = r_m < np.abs(r[far])
+            r[far] = np.where(use, r_m, r[far])
+            jac[far] = np.where(use[:, None], jac_e * (r_e / r_m)[:, None], jac[far])
         if self.robust:
             r, dr = soft_l1(r, self.tau)
             jac = jac * dr[:, None]
@@ -470,14 +858,22 @@ class AlignmentProblem:
         # CAD -> observed surfels (ours): normal and tangential-excess residuals per visible sample.
         if self.prepared is not None and len(self.samples):
             prep = self.prepared
-            ms = self.samples - c_m
+            samples, sample_normals, sample_links = self.samples, self.sample_normals, None
+            if conf is not None:  # the samples move with their links
+                sample_links = self.geom.sample_links[self.sample_idx]
+                rot, trans = conf.poses[sample_links, :3, :3], conf.poses[sample_links, :3, 3]
+                samples = np.einsum("nij,nj->ni", rot, self.geom.link_samples[self.sample_idx]) + trans
+                sample_normals = np.einsum("nij,nj->ni", rot, self.geom.link_normals[self.sample_idx])
+            ms = samples - c_m
             y = (ms * s) @ a.T + t
-            ny = (self.sample_normals / s) @ a.T
+            ny = (sample_normals / s) @ a.T
             ny /= np.maximum(np.linalg.norm(ny, axis=1, keepdims=True), EPS)
             if self.visible_mask is None:  # fixed for one fit: keeps the residual vector's meaning
-                area = self.geom.sample_area * len(self.geom.samples) / max(len(ny), 1) * float(np.prod(s)) ** (2 / 3)
+                area = self.geom.sample_area * self.pool_count / max(len(ny), 1) * float(np.prod(s)) ** (2 / 3)
                 self.visible_mask = visible_samples(
-                    ny, np.ones(len(ny), dtype=bool), prep.bin_area, area, self.cfg.visible_min_coverage
+                    ny, np.ones(len(ny), dtype=bool), prep.bin_area, area, self.cfg.visible_min_coverage,
+                    samples_map=y if self.face_reach is not None else None, face_area=prep.face_area,
+                    face_reach=self.face_reach or 1,
                 )
             vis = self.visible_mask
             w = self.sample_weight
@@ -491,7 +887,7 @@ class AlignmentProblem:
                 et = e - en[:, None] * no
                 etn = np.linalg.norm(et, axis=1)
                 g = np.maximum(etn - prep.surfel_radius, 0.0)
-                dy = self._dq(ms[vis], ys - t, s, a)
+                dy = self._dq(ms[vis], ys - t, s, a, conf, None if sample_links is None else sample_links[vis])
                 j_n = -np.einsum("ni,nip->np", no, dy)
                 tdir = et / np.maximum(etn, EPS)[:, None]
                 j_g = -np.einsum("ni,nip->np", tdir, dy) * (g > 0.0)[:, None]
@@ -530,6 +926,22 @@ class AlignmentProblem:
         self._cache_x = x.copy()
         self._cache = out
         return out
+
+    def score(self, x: NDArray[np.float64]) -> float:
+        """Two-sided robust RMS at ``x``, as the AE: over the points and the *visible* samples.
+
+        Dividing by the visible samples only (not by all drawn ones) keeps a hypothesis that
+        shows no face to the observed directions from looking good for having nothing to check.
+        """
+        r = self.residuals(x)
+        n = len(self.points)
+        total = float(np.sum(r[:n] ** 2))
+        count = n
+        nv = int(np.count_nonzero(self.visible_mask)) if self.visible_mask is not None else 0
+        if self.prepared is not None and nv > 0:
+            total += float(np.sum(r[n : n + 2 * nv] ** 2)) / self.sample_weight**2
+            count += nv
+        return float(np.sqrt(total / max(count, 1)))
 
     def residuals(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         return self._evaluate(x)[0]
@@ -574,6 +986,34 @@ def box_start_scale(
     up_axis = int(np.argmax(np.abs(box_rotation[2])))
     s_up = ratio[up_axis]
     return np.clip(ratio, s_up / clip, s_up * clip)
+
+
+def box_start(
+    box: GravityBox, geom: ModelGeometry, box_rotation: NDArray[np.float64], bottom_z: float, clip: float = 1.5
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Start scale and model box centre (xy) of a candidate from the observed box.
+
+    ``box_start_scale`` and the box centre, except for articulated models: their doors open and
+    their drawers slide towards the model front (+x), so an open part inflates the observed box on
+    that side only. There the depth ratio is capped at the larger of the lateral and vertical
+    ratios (the model's own proportions) and the model is put against the box's back, whose side
+    no moving part can move.
+    """
+    scale = box_start_scale(box, geom, box_rotation, bottom_z, clip)
+    center = np.asarray(box.center[:2], dtype=np.float64).copy()
+    if not geom.model.movable_joints:
+        return scale, center
+    k = int(np.argmax(np.abs(box_rotation[:, 0])))  # box axis the model front lies along
+    if k == 2:  # lying on its back: the vertical extent is fixed by the support anyway
+        return scale, center
+    cap = max(float(scale[1]), float(scale[2]))
+    if scale[0] <= cap:
+        return scale, center
+    shift = 0.5 * (scale[0] - cap) * float(geom.size[0])
+    front = rot_z(box.yaw)[:2, k] * float(np.sign(box_rotation[k, 0]))
+    scale = scale.copy()
+    scale[0] = cap
+    return scale, center - shift * front
 
 
 @dataclass(frozen=True)
@@ -659,7 +1099,10 @@ def alignment_error(
     surfel. AE is the RMS over both sets; never NaN (an empty direction contributes nothing).
     """
     pts = prepared.points
-    vis = visible_samples(normals_map, self_visible, prepared.bin_area, sample_area, cfg.visible_min_coverage)
+    vis = visible_samples(
+        normals_map, self_visible, prepared.bin_area, sample_area, cfg.visible_min_coverage,
+        samples_map=samples_map, face_area=prepared.face_area,
+    )
     if prepared.view_dir is not None and np.any(vis):
         # Partial view: keep samples an orthographic camera along the viewing direction would see
         # (rays from far away towards the sample must reach it first), so occluded back legs or
@@ -695,15 +1138,18 @@ def map_normals(normals: NDArray[np.float64], placement: Placement) -> NDArray[n
 __all__ = [
     "AlignmentError",
     "AlignmentProblem",
+    "FaceAreas",
     "GeometryCache",
     "ModelGeometry",
     "Placement",
     "PreparedObservation",
     "alignment_error",
+    "box_start",
     "box_start_scale",
     "closest_points",
     "direction_bin",
     "estimate_normals",
+    "face_keys",
     "map_normals",
     "nearest_surfel",
     "observed_area_per_bin",

@@ -204,26 +204,60 @@ def box_in_frame(points: NDArray[np.float64], yaw: float) -> GravityBox:
     return GravityBox(center, hi - lo, yaw)
 
 
+def _plane_yaw_clusters(planes: ObservedPlanes, tol: float) -> list[tuple[float, float]]:
+    """(yaw modulo a quarter turn, summed area) of the vertical planes, grouped within ``tol`` (rad).
+
+    Largest area first; a cluster's yaw is the area-weighted mean of its planes' yaws. The front and
+    the sides of a body fall into one cluster (perpendicular planes share a yaw modulo a quarter
+    turn), so together they outweigh a single open door.
+    """
+    quarter = 0.5 * np.pi
+    vertical = np.flatnonzero(np.abs(planes.normals[:, 2]) < 0.2)
+    clusters: list[list[float]] = []  # [reference yaw, sum(area * offset from reference), sum(area)]
+    for i in vertical[np.argsort(-planes.areas[vertical])]:
+        yaw = float(np.arctan2(planes.normals[i, 1], planes.normals[i, 0]))
+        yaw = yaw - quarter * np.round(yaw / quarter)
+        area = float(planes.areas[i])
+        for c in clusters:
+            off = ((yaw - c[0] + 0.5 * quarter) % quarter) - 0.5 * quarter
+            if abs(off) <= tol:
+                c[1] += area * off
+                c[2] += area
+                break
+        else:
+            clusters.append([yaw, 0.0, area])
+    out = [(c[0] + c[1] / c[2], c[2]) for c in clusters]
+    return sorted(out, key=lambda it: -it[1])
+
+
 def candidate_frames(obs: ObjectObservation, planes: ObservedPlanes, extra: int = 2) -> list[GravityBox]:
     """Box frames whose axes the model axes are aligned to: the observed box, plus (ours) the frames
     of the largest vertical planes.
 
     The minimal-footprint box is tilted when a door stands open or a drawer is out; the large
-    vertical planes (sides, front, back) still show the body's axes. Frames within 5 degrees of one
-    already listed (modulo a quarter turn) are dropped.
+    vertical planes (sides, front, back) still show the body's axes. Vertical planes are grouped
+    by yaw modulo a quarter turn (within 5 degrees, ``_plane_yaw_clusters``); a group within
+    5 degrees of the observed box replaces the box's yaw (fitted planes pin the yaw better than
+    the extreme points of a box), the other groups add frames, largest area first.
     """
     box = obs.gravity_box
     frames = [box]
     if extra <= 0 or len(planes.normals) == 0:
         return frames
-    vertical = np.flatnonzero(np.abs(planes.normals[:, 2]) < 0.2)
-    for i in vertical[np.argsort(-planes.areas[vertical])]:
+    tol = np.radians(5.0)
+    quarter = 0.5 * np.pi
+
+    def gap(a: float, b: float) -> float:
+        return abs(((a - b + 0.5 * quarter) % quarter) - 0.5 * quarter)
+
+    clusters = _plane_yaw_clusters(planes, tol)
+    near_box = [yaw for yaw, _ in clusters if gap(yaw, box.yaw) <= tol]
+    if near_box:
+        frames[0] = box_in_frame(obs.points, near_box[0])
+    for yaw, _area in clusters:
         if len(frames) > extra:
             break
-        yaw = float(np.arctan2(planes.normals[i, 1], planes.normals[i, 0]))
-        quarter = 0.5 * np.pi
-        yaw = yaw - quarter * np.round(yaw / quarter)
-        if all(abs(((yaw - f.yaw + 0.25 * np.pi) % quarter) - 0.25 * np.pi) > np.radians(5.0) for f in frames):
+        if all(gap(yaw, f.yaw) > tol for f in frames):
             frames.append(box_in_frame(obs.points, yaw))
     return frames
 

@@ -68,6 +68,10 @@ class CadReplacementConfig:
     #: Robust scale tau (m) of the soft-L1 residual of ours: points farther than ~tau from the CAD
     #: surface (an open door fitted with a closed model, clutter) stop pulling the fit.
     robust_scale: float = 0.02
+    #: Ours: price (m) of explaining an observed point by a moving part at some joint value other
+    #: than closed (articulation envelope, ``alignment.envelope_mesh``): bodies fit through open
+    #: doors and pulled-out drawers, yet a point the body itself can explain prefers the body.
+    envelope_margin: float = 0.02
     #: Ours: weight (m per unit log-anisotropy, per point) pulling per-axis scales towards a common
     #: one: CAD proportions are a prior where the data says little (unseen back of an object).
     anisotropy_weight: float = 0.002
@@ -85,6 +89,10 @@ class CadReplacementConfig:
     # ------------------------------------------------------------------ alignment error (AE)
     #: CAD surface samples per model for the CAD -> points direction of the AE.
     ae_model_samples: int = 1200
+    #: Ours: reach (in ``alignment.FACE_SLAB`` slabs, 5 cm) within which an observed face of the
+    #: same direction makes a CAD face count in the fits' CAD -> observed term (the AE uses 1):
+    #: shelves seen through an open door do not make a fridge's unseen top count.
+    fit_face_reach: int = 3
     #: Observed points used to evaluate AE (random subsample; all when fewer).
     ae_points: int = 2000
     #: Observed points used as surfels for the CAD -> points direction (denser is more exact).
@@ -105,6 +113,15 @@ class CadReplacementConfig:
     joint_points: int = 200
     #: Coordinate-descent passes over the joints.
     joint_passes: int = 1
+    #: Estimated openings smaller than these (rad for revolute, m for prismatic joints) are taken
+    #: as closed: they are within what a pose/scale error of a few mm explains.
+    joint_snap_angle: float = 0.0873  # 5 degrees
+    joint_snap_shift: float = 0.04
+    #: Ours, articulated models: extra rounds of (joint fit of pose and open joints, 1-D joint
+    #: search) after the first, taken while the joints or the pose still move, and the LM
+    #: evaluations of each extra round.
+    refine_rounds: int = 2
+    refine_max_nfev: int = 15
 
     #: Random seed of every subsample (deterministic results).
     seed: int = 0

@@ -6,11 +6,16 @@ as a dense fit), articulation and selection, for either method of ``CadReplaceme
 * ``"paper"``: all 24 orientations per model; L1 box term + Hungarian plane term; every top-k
   candidate gets one dense LM (uniform scale, yaw, translation; Eq. 11) from its box start on all
   points; the candidate with the smallest one-sided AE (Sec. 4.3) wins; joints stay closed.
-* ``"ours"``: gravity-restricted orientations + front and class terms; each top-k candidate is
-  screened with a short two-sided robust LM on a small subsample (coarse stage: the 4 yaws of each
-  model compete on data, so the dense fit never starts in a half-turn minimum); the best
-  ``screen_keep`` get the full fit (anisotropic scale) and joint estimation; the winner has the
-  smallest two-sided AE, lightly weighted by the front and class terms.
+* ``"ours"``: gravity-restricted orientations + front and class terms, box frames from the
+  dominant vertical planes (an open door tilts the observed box, the body's front and sides do
+  not); each top-k candidate is screened with a short two-sided robust LM on a small subsample
+  (coarse stage: the 4 yaws of each model compete on data, so the dense fit never starts in a
+  half-turn minimum), articulated models through their articulation envelope (an open door or a
+  pulled-out drawer does not drag the body). The best ``screen_keep`` get joint estimation at the
+  screened pose (``articulation``), the full fit (anisotropic scale) at those joint values with
+  the open joints refined together with the pose, and the joints searched again; the winner has
+  the smallest two-sided AE at its estimated joint values, lightly weighted by the front and class
+  terms.
 
 The global physical check of Sec. 4.4 consumes ``ObjectReplacement.candidates`` (ranked backups).
 """
@@ -38,6 +43,7 @@ from .alignment import (
     Placement,
     PreparedObservation,
     alignment_error,
+    box_start,
     box_start_scale,
     posed_scene,
 )
@@ -172,13 +178,18 @@ def _final_error(
     cfg: CadReplacementConfig,
     scaled: CadModel | None = None,
 ) -> AlignmentError:
-    """AE of a candidate at its scaled, articulated configuration (exact geometry)."""
-    scaled = scaled if scaled is not None else geom.model.scaled(placement.scale)
+    """AE of a candidate at its scaled, articulated configuration (exact geometry).
+
+    Self-visibility is that of the articulated configuration: with a door open, the inside of the
+    carcass and the door's inner face can be seen (and must then be explained by the points).
+    """
+    scaled = scaled if scaled is not None else geom.bare_model.scaled(placement.scale)
     rigid = Placement(placement.rotation, placement.translation, np.ones(3))
     scene = posed_scene(scaled.mesh(values), rigid)
     pts, nrm = _posed_samples(geom, scaled, placement, values)
     area = geom.sample_area * float(np.prod(placement.scale)) ** (2.0 / 3.0)
-    return alignment_error(prepared, scene, pts, nrm, geom.self_visible, cfg, area)
+    self_visible = geom.articulated(values).self_visible if values else geom.self_visible
+    return alignment_error(prepared, scene, pts, nrm, self_visible, cfg, area)
 
 
 def replace_object(
@@ -241,10 +252,25 @@ def replace_object(
     return base
 
 
-def _rms(prob: AlignmentProblem, x: NDArray[np.float64]) -> float:
-    """Robust RMS of a problem's residuals at ``x`` (the screening score)."""
-    r = prob.residuals(x)
-    return float(np.sqrt(np.mean(r * r))) if len(r) else 0.0
+#: Joint changes below which another refit round is not worth it (rad for revolute, m for prismatic).
+REFIT_ANGLE = np.radians(2.0)
+REFIT_SHIFT = 0.01
+
+
+def _joints_moved(model: CadModel, before: dict[str, float], after: dict[str, float]) -> bool:
+    """Whether any joint value changed enough to refit the pose at the new values."""
+    for j in model.movable_joints:
+        tol = REFIT_SHIFT if j.type == "prismatic" else REFIT_ANGLE
+        if abs(after.get(j.name, 0.0) - before.get(j.name, 0.0)) > tol:
+            return True
+    return False
+
+
+def _pose_moved(prob: AlignmentProblem, x0: NDArray[np.float64], x1: NDArray[np.float64]) -> bool:
+    """Whether a fit moved the model by more than ``REFIT_SHIFT`` or turned it by ``REFIT_ANGLE``."""
+    p0, p1 = prob.placement(x0), prob.placement(x1)
+    turn = abs((p1.yaw - p0.yaw + np.pi) % (2.0 * np.pi) - np.pi)
+    return bool(turn > REFIT_ANGLE or np.linalg.norm(p1.translation - p0.translation) > REFIT_SHIFT)
 
 
 def _selection_factor(m: MatchCandidate, cfg: CadReplacementConfig) -> float:
@@ -275,11 +301,13 @@ def _align_ours(
         geoms[m.entry.key] = geom
         prob = AlignmentProblem(
             geom, m.rotation, bottom, prepared.screen_points, cfg, prepared=prepared,
+            point_normals=prepared.screen_normals,
             anisotropy_weight=cfg.anisotropy_weight, height_target=height, height_weight=cfg.height_weight,
-            model_samples=max(60, cfg.screen_points), round_weight=round_weight(m),
+            model_samples=max(60, cfg.screen_points), envelope=True, face_reach=cfg.fit_face_reach,
+            round_weight=round_weight(m),
         )
-        x0 = prob.start(box_start_scale(m.frame, geom, m.box_rotation, bottom), m.frame.center[:2])
-        starts.append((_rms(prob, x0) * _selection_factor(m, cfg), m, prob, x0))
+        x0 = prob.start(*box_start(m.frame, geom, m.box_rotation, bottom))
+        starts.append((prob.score(x0) * _selection_factor(m, cfg), m, prob, x0))
     starts.sort(key=lambda it: it[0])
     timings["screen_start"] = time.perf_counter() - t
     # Coarse stage 2: a short robust LM on the subsample for the best starts.
@@ -296,7 +324,7 @@ def _align_ours(
         per_model[m.entry.key] = per_model.get(m.entry.key, 0) + 1
         fitted += 1
         x, cost, nfev = prob.solve(x0, cfg.screen_max_nfev)
-        screened.append((_rms(prob, x) * _selection_factor(m, cfg), m, x, cost, nfev))
+        screened.append((prob.score(x) * _selection_factor(m, cfg), m, x, cost, nfev))
     timings["screen"] = time.perf_counter() - t
     screened.sort(key=lambda it: it[0])
 
@@ -315,22 +343,56 @@ def _align_ours(
             results.append(CandidateResult(m, pl, nan_ae, float(score) * 10.0, {}, "screen", cost, nfev))
             continue
         full_count[m.entry.key] = full_count.get(m.entry.key, 0) + 1
-        prob = AlignmentProblem(
-            geom, m.rotation, bottom, prepared.fit_points, cfg, prepared=prepared,
-            anisotropy_weight=cfg.anisotropy_weight, height_target=height, height_weight=cfg.height_weight,
-            model_samples=cfg.align_model_samples, round_weight=round_weight(m),
-        )
-        x2, cost2, nfev2 = prob.solve(x, cfg.align_max_nfev)
-        pl = prob.placement(x2)
-        scaled = geom.model.scaled(pl.scale)
-        values = scaled.zero_configuration()
+        # Articulated models: screening fitted the body through the articulation envelope (open
+        # doors and pulled-out drawers neither drag it nor count as clutter). The joints are
+        # estimated at the screened pose (1-D searches, ``articulation``); the full fit then runs
+        # against the model at those joint values (exact configuration: the door's points and the
+        # inside it uncovers count) with the open joints' values as parameters too (pose and joints
+        # refined together), and the joints are searched again from the refined pose; while that
+        # search moves them, the joint fit is repeated (``refine_rounds``).
+        # Rigid models: one fit, Eq. (11) with dense residuals.
         art = None
-        if scaled.movable_joints:
+        values: dict[str, float] = {}
+        if geom.model.movable_joints:
             ta = time.perf_counter()
-            rigid_pose = pl.pose
-            art = estimate_joint_values(prepared.fit_points, scaled, rigid_pose, cfg)
-            values = art.values
+            pl0 = AlignmentProblem(geom, m.rotation, bottom, prepared.fit_points, cfg).placement(x)
+            art = estimate_joint_values(prepared.fit_points, geom.bare_model.scaled(pl0.scale), pl0.pose, cfg)
             t_art += time.perf_counter() - ta
+            values = art.values
+        nfev2 = 0
+        max_nfev = cfg.align_max_nfev
+        n_base = len(x)
+        for _ in range(1 + (cfg.refine_rounds if art is not None else 0)):
+            open_joints = [j for j in geom.model.movable_joints if abs(values[j.name] - j.zero_value) > 1e-9]
+            prob = AlignmentProblem(
+                geom.articulated(values) if values else geom, m.rotation, bottom, prepared.fit_points, cfg,
+                prepared=prepared, anisotropy_weight=cfg.anisotropy_weight, height_target=height,
+                height_weight=cfg.height_weight, model_samples=cfg.align_model_samples,
+                face_reach=cfg.fit_face_reach, point_normals=prepared.fit_normals, joints=open_joints,
+                round_weight=round_weight(m),
+            )
+            x_start = x[:n_base].copy()
+            xj, cost2, nfev3 = prob.solve(np.r_[x_start, np.zeros(len(open_joints))], max_nfev)
+            x = xj[:n_base]
+            nfev2 += nfev3
+            max_nfev = cfg.refine_max_nfev
+            pl = prob.placement(x)
+            scaled = geom.bare_model.scaled(pl.scale)
+            if art is None:
+                break
+            q_fit = prob.joint_values(xj)
+            ta = time.perf_counter()
+            art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg)
+            t_art += time.perf_counter() - ta
+            values = art.values
+            # Another round when the joints moved, or, with parts open (their inside and their own
+            # occlusions make the choice pose-dependent), when the pose moved away from where the
+            # fit chose the CAD samples the observation could have seen (fixed per fit).
+            if _joints_moved(scaled, q_fit, values):
+                continue
+            if not (open_joints and _pose_moved(prob, x_start, x)):
+                break
+        values = art.values if art is not None else scaled.zero_configuration()
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
         score2 = ae.ae * _selection_factor(m, cfg)
         results.append(CandidateResult(m, pl, ae, score2, values, "full", cost2, nfev + nfev2, art))

@@ -96,26 +96,59 @@ def test_recovers_pose_in_library(cls: str, library: SeededLibrary) -> None:
     assert rep.chosen is not None and rep.chosen.class_name in candidate_classes(cls)
 
 
-@pytest.mark.xfail(
-    reason="known weakness: with a door 40 deg open and a one-sided view the body yaw lands 15-30 deg off "
-    "(the open door drags the screening fit), so the angle is not recovered yet",
-    strict=False,
-)
-@pytest.mark.parametrize("cls", ["fridge", "cabinet"])
-def test_open_door_angle_is_estimated(cls: str, library: SeededLibrary) -> None:
-    rng = np.random.default_rng(11)
-    model = build_model(cls, 1)
-    door = next(j for j in model.movable_joints if j.type == "revolute")
-    values = {door.name: np.radians(40.0)}
+def _model_with(cls: str, joint_type: str, count: int = 1) -> tuple[CadModel, list]:
+    """Procedural model 1 of ``cls`` (as the in-library tests), or the first of seeds 0..9 with
+    ``count`` joints of ``joint_type`` (cabinet 1 has drawers only: its doors come from seed 0)."""
+    for seed in (1, 0, *range(2, 10)):
+        model = build_model(cls, seed)
+        joints = [j for j in model.movable_joints if j.type == joint_type]
+        if len(joints) >= count:
+            return model, joints[:count]
+    raise AssertionError(f"no {cls} with {count} {joint_type} joints")
+
+
+def _replace_articulated(
+    cls: str, joint_type: str, opening: list[float], seed: int, library: SeededLibrary
+) -> tuple[CadModel, list, dict[str, float]]:
+    """Observe the model with its first joints of ``joint_type`` opened, one-sided; replace it; check the pose."""
+    model, joints = _model_with(cls, joint_type, len(opening))
+    values = {j.name: v for j, v in zip(joints, opening, strict=True)}
+    rng = np.random.default_rng(seed)
     pose = _pose(0.7, (0.5, -1.0, 0.0))
     obs, _ = _observe(model, pose, values, rng)
     rep = replace_object(obs, library, CadReplacementConfig())
     _check_pose(rep, model, pose, t_tol=0.05, size_tol=0.10, ae_tol=0.01)
-    assert abs(np.degrees(rep.joint_values[door.name] - values[door.name])) <= 10.0
+    assert rep.chosen is not None and rep.chosen.class_name in candidate_classes(cls)
+    return model, joints, rep.joint_values
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+@pytest.mark.parametrize("cls", ["fridge", "cabinet"])
+def test_open_door_angle_is_estimated(cls: str, seed: int, library: SeededLibrary) -> None:
+    # A door 40 deg open, seen from the front (one-sided): the body is not dragged towards the door,
+    # the front is not flipped (``_check_pose``) and the door comes back at ~40 deg.
+    model, (door,), est = _replace_articulated(cls, "revolute", [np.radians(40.0)], seed, library)
+    assert abs(np.degrees(est[door.name]) - 40.0) <= 10.0, est
     # The other joints stay (about) closed.
     for j in model.movable_joints:
         if j.name != door.name and j.type == "revolute":
-            assert abs(np.degrees(rep.joint_values[j.name])) <= 10.0
+            assert abs(np.degrees(est[j.name])) <= 10.0, est
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_pulled_out_drawer_is_estimated(seed: int, library: SeededLibrary) -> None:
+    model, (drawer,), est = _replace_articulated("cabinet", "prismatic", [0.20], seed, library)
+    assert abs(est[drawer.name] - 0.20) <= 0.03, est
+    for j in model.movable_joints:
+        if j.name != drawer.name:
+            assert abs(est[j.name]) <= 0.03, est
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_both_doors_open_are_estimated(seed: int, library: SeededLibrary) -> None:
+    _, doors, est = _replace_articulated("cabinet", "revolute", [np.radians(40.0)] * 2, seed, library)
+    for d in doors:
+        assert abs(np.degrees(est[d.name]) - 40.0) <= 10.0, est
 
 
 def test_unseen_library_still_aligns(library: SeededLibrary) -> None:
