@@ -85,7 +85,7 @@ def run_one(bag: Path, gt: Path, spec: dict, frames: int, out: Path) -> dict:
     data = DataInputConfig(max_frames=frames)
     data.topics.labels = "/ground_truth/panoptic_labels"
     mapper, run = map_recording(bag, make_segmenter(seg_cfg), cfg, data, progress=False)
-    ents, summary = write_map_outputs(out, mapper, run, picture=False)
+    ents, summary = write_map_outputs(out, mapper, run)  # no picture: that is the CLI's
     scene = GroundTruthScene.load(gt)
     m = evaluate_panoptic_map(ents, scene.entities)
     return {

@@ -113,8 +113,8 @@ class PanopticMapper:
         self.keyframes += 1
 
     # ------------------------------------------------------------------ per frame
-    def integrate(self, frame: RGBDFrame, masks: PanopticMasks | None) -> FrameStats:
-        """Integrate one posed frame; `masks` (full-resolution panoptic masks) only on keyframes."""
+    def _checked_pose(self, frame: RGBDFrame) -> np.ndarray:
+        """The frame's camera-to-map pose relative to the map origin; raises when there is none or it is too far."""
         if frame.pose is None:
             raise ValueError("the mapper needs a camera pose for every frame")
         pose = self.local_pose(frame.pose)
@@ -122,6 +122,40 @@ class PanopticMapper:
         if dist > MAX_LOCAL_DISTANCE_M:
             raise ValueError(f"camera is {dist / 1000:.1f} km from the map origin: float32 voxels collapse that far; "
                              "recentre the map on the first pose (PanopticMapper.recentre, done by map_recording)")
+        return pose
+
+    def fuses_labels(self, masks: PanopticMasks | None) -> bool:
+        """Whether `integrate(frame, masks)` fuses labels now: masks given, or a label-propagation frame
+        (every `keyframes.label_every_n_frames`-th frame); all others take the geometry-only path."""
+        n_label = self.config.keyframes.label_every_n_frames
+        return masks is not None or (n_label > 0 and self.frames_integrated % n_label == 0)
+
+    def integrate_geometry(self, frame: RGBDFrame) -> FrameStats:
+        """Integrate one posed frame's depth into the TSDF only (the geometry-only fast path).
+
+        No depth segmentation, normals, association, label votes or Phi counts: what mapping without a
+        segmenter (`--segmenter none`) does for every frame, and what `integrate` does between keyframes
+        on frames that propagate no labels. Costs Open3D's integration plus a depth range threshold
+        (and the downsampling when `downsample` > 1); nothing here grows with the map. The voxels'
+        labels are left as they are: extraction gives unlabelled surface to the 'unknown' entity.
+        """
+        pose = self._checked_pose(frame)
+        t0 = time.perf_counter()
+        ds = self.config.downsample
+        intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
+        self.tsdf.integrate_depth(downsample_depth(frame.depth, ds), intr.matrix, pose)
+        self.frames_integrated += 1
+        return FrameStats(False, 0, 0, 0, 0, {"integration": (time.perf_counter() - t0) * 1000})
+
+    def integrate(self, frame: RGBDFrame, masks: PanopticMasks | None) -> FrameStats:
+        """Integrate one posed frame; `masks` (full-resolution panoptic masks) only on keyframes.
+
+        Frames without masks that propagate no labels (see `fuses_labels`) take `integrate_geometry`.
+        """
+        if not self.fuses_labels(masks):
+            # geometry only: labels come from keyframes (the extraction fills the fringe)
+            return self.integrate_geometry(frame)
+        pose = self._checked_pose(frame)
         t0 = time.perf_counter()
         cfg = self.config
         ds = cfg.downsample
@@ -130,13 +164,6 @@ class PanopticMapper:
         intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
         area = 1.0 / (ds * ds)
         t = {}
-        n_label = cfg.keyframes.label_every_n_frames
-        if masks is None and (n_label <= 0 or self.frames_integrated % n_label):
-            # geometry only: labels come from keyframes (the extraction fills the fringe)
-            self.tsdf.integrate_depth(depth, intr.matrix, pose)
-            self.frames_integrated += 1
-            t1 = time.perf_counter()
-            return FrameStats(False, 0, 0, 0, 0, {"integration": (t1 - t0) * 1000})
         geo, points, _normals = segment_depth(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
         t["depth_segmentation"] = time.perf_counter()
         if masks is not None:
@@ -168,7 +195,7 @@ class PanopticMapper:
         self.tsdf.integrate_labels(world[has], pix_labels[has], lut)
         for label in np.unique(pix_labels[has]).tolist():
             self.counts.last_update[int(label)] = self.frames_integrated
-        self.tsdf.integrate_depth(depth, intr.matrix, pose)
+        self.tsdf.integrate_depth(depth, intr.matrix, pose, in_range=True)
         t["integration"] = time.perf_counter()
         self.frames_integrated += 1
         every = cfg.regularization.every_n_frames

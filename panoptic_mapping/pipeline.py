@@ -104,10 +104,12 @@ def _choose_origin(mapper: PanopticMapper, pose: np.ndarray, recentre_beyond_m: 
     log.info("map recentred on the first pose: origin_offset_m = %s", mapper.origin_offset.tolist())
 
 
-def _integrate_or_skip(mapper: PanopticMapper, frame: Any, masks: PanopticMasks | None, run: MappingRun) -> Any:
-    """`mapper.integrate`, with a failing frame logged and counted instead of ending the run."""
+def _integrate_or_skip(mapper: PanopticMapper, frame: Any, masks: PanopticMasks | None, run: MappingRun,
+                       geometry_only: bool = False) -> Any:
+    """`mapper.integrate` (`integrate_geometry` when `geometry_only`), with a failing frame logged and
+    counted instead of ending the run."""
     try:
-        return mapper.integrate(frame, masks)
+        return mapper.integrate_geometry(frame) if geometry_only else mapper.integrate(frame, masks)
     except (MemoryError, KeyboardInterrupt):
         raise
     except Exception as exc:  # Open3D raises RuntimeError; a bad frame must not end a long recording
@@ -130,6 +132,9 @@ def map_recording(
 ) -> tuple[PanopticMapper, MappingRun]:
     """Integrate every posed frame of `source`; segment keyframes only (when gating is enabled).
 
+    Without a segmenter (None, or the `none` backend, which never labels anything) every frame takes
+    the mapper's geometry-only path: TSDF integration alone, no depth segmentation or label work.
+
     A frame the mapper fails on is logged, counted (`run.failed_frames`) and skipped. A recording
     whose first pose lies farther than `recentre_beyond_m` from the origin is mapped relative to that
     pose (`mapper.origin_offset`; 0 disables). Raises DatasetError, saying why and what to do, when
@@ -139,6 +144,9 @@ def map_recording(
     from tqdm import tqdm
 
     mapper = mapper or PanopticMapper(mapper_config, class_metas(class_table))
+    if segmenter is not None and getattr(segmenter, "name", None) == "none":
+        segmenter = None  # returns no masks, ever: no label can be fused
+    geometry_only = segmenter is None
     run = MappingRun()
     t_start = time.perf_counter()
     with open_dataset(source, data_config) as loader:
@@ -157,17 +165,18 @@ def map_recording(
             if not run.frames and not run.failed_frames:
                 _choose_origin(mapper, frame.pose, recentre_beyond_m)
             masks = None
-            if segmenter is not None and mapper.is_keyframe(frame):
+            if geometry_only:
+                if mapper.is_keyframe(frame):  # counted only (reported as keyframes)
+                    mapper.mark_keyframe(frame)
+            elif mapper.is_keyframe(frame):
                 mapper.mark_keyframe(frame)
                 t1 = time.perf_counter()
                 seg = segmenter.segment_frame(frame)
                 run.segmentation_s += time.perf_counter() - t1
                 run.segmentation_calls += 1
                 masks = masks_from_segmentation(seg)
-            elif segmenter is None and mapper.is_keyframe(frame):
-                mapper.mark_keyframe(frame)
             t2 = time.perf_counter()
-            stats = _integrate_or_skip(mapper, frame, masks, run)
+            stats = _integrate_or_skip(mapper, frame, masks, run, geometry_only)
             run.mapper_s += time.perf_counter() - t2
             bar.update(1)
             if stats is None:

@@ -194,7 +194,8 @@ class MapperNode(Node):
                 self.counters["keyframes_unsegmented"] += 1
                 self.get_logger().warning("segmentation service not available: mapping geometry only",
                                           throttle_duration_sec=10.0)
-        self._integrate(frame, None)
+        # without segmentation no label is ever fused: the TSDF-only path (no depth segmentation)
+        self._integrate(frame, None, geometry_only=not self.use_segmentation)
 
     def _collect_segmentations(self) -> None:
         still = []
@@ -232,12 +233,15 @@ class MapperNode(Node):
             cls[s.id], thing[s.id], score[s.id] = s.class_id, s.is_thing, s.score
         return PanopticMasks(np.where(labels < n, labels, 0).astype(np.int32), cls, thing, score)
 
-    def _integrate(self, frame: RGBDFrame, masks: PanopticMasks | None) -> None:
+    def _integrate(self, frame: RGBDFrame, masks: PanopticMasks | None, geometry_only: bool = False) -> None:
         try:
             if masks is not None and masks.labels.shape != frame.depth.shape:
                 self.get_logger().error("segmentation labels do not match the image size; ignored")
                 masks = None
-            self.mapper.integrate(frame, masks)
+            if geometry_only:
+                self.mapper.integrate_geometry(frame)
+            else:
+                self.mapper.integrate(frame, masks)
             self.counters["integrated"] += 1
             self._changed = True
         except (ValueError, DatasetError) as exc:

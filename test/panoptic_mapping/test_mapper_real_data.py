@@ -74,14 +74,14 @@ def _recording(folder, n=5, offset=(0.0, 0.0, 0.0), with_poses=True):
 
 def test_a_frame_the_mapper_fails_on_is_logged_counted_and_skipped(tmp_path, monkeypatch, caplog):
     _recording(tmp_path / "rec")
-    real = PanopticMapper.integrate
+    real = PanopticMapper.integrate_geometry  # no segmenter: every frame takes the geometry-only path
 
-    def flaky(self, frame, masks):
+    def flaky(self, frame):
         if frame.index == 2:
             raise RuntimeError("\x1b[1;31m[Open3D Error] No block is touched in TSDF volume\x1b[0;m")
-        return real(self, frame, masks)
+        return real(self, frame)
 
-    monkeypatch.setattr(PanopticMapper, "integrate", flaky)
+    monkeypatch.setattr(PanopticMapper, "integrate_geometry", flaky)
     with caplog.at_level(logging.WARNING):
         mapper, run = map_recording(tmp_path / "rec", None, progress=False)
     assert run.frames == 4 and run.failed_frames == 1 and run.skipped["mapper_failed"] == 1
@@ -89,7 +89,7 @@ def test_a_frame_the_mapper_fails_on_is_logged_counted_and_skipped(tmp_path, mon
     assert "frame 2 (t=10.067 s) not integrated" in caplog.text
     assert mapper.frames_integrated == 4
 
-    monkeypatch.setattr(PanopticMapper, "integrate", lambda self, f, m: (_ for _ in ()).throw(ValueError("boom")))
+    monkeypatch.setattr(PanopticMapper, "integrate_geometry", lambda self, f: (_ for _ in ()).throw(ValueError("boom")))
     with pytest.raises(MappingFailed, match="all 5 frames failed in the mapper"):
         map_recording(tmp_path / "rec", None, progress=False)
 

@@ -53,14 +53,14 @@ def test_map_of_unreconcilable_sizes_is_an_error_not_an_empty_success(tmp_path, 
 
 def test_map_survives_a_frame_the_mapper_fails_on(tmp_path, capsys, monkeypatch):
     bag = rgbd_rawbag(n=4).write(tmp_path / "rec")
-    real = PanopticMapper.integrate
+    real = PanopticMapper.integrate_geometry  # --segmenter none: every frame takes the geometry-only path
 
-    def flaky(self, frame, masks):
+    def flaky(self, frame):
         if frame.index == 1:
             raise RuntimeError("No block is touched in TSDF volume")
-        return real(self, frame, masks)
+        return real(self, frame)
 
-    monkeypatch.setattr(PanopticMapper, "integrate", flaky)
+    monkeypatch.setattr(PanopticMapper, "integrate_geometry", flaky)
     assert main(["map", str(bag), "--out", str(tmp_path / "out"), "--segmenter", "none"]) == 0
     out = capsys.readouterr().out
     assert "mapped 3 frames" in out
