@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from cad_replacement.cad.model import CadModel, Joint
 
-from .alignment import raycasting_scene
+from .alignment import joint_subtree, raycasting_scene
 from .replace_config import CadReplacementConfig
 
 EPS = 1e-12
@@ -55,19 +55,6 @@ class ArticulationResult:
 def _robust(d: NDArray[np.float64], tau: float) -> NDArray[np.float64]:
     """Soft-L1 cost of distances (bounded influence of outliers)."""
     return 2.0 * tau * tau * (np.sqrt(1.0 + (d / tau) ** 2) - 1.0)
-
-
-def _subtree(model: CadModel, joint: Joint) -> list[str]:
-    """Links moved by ``joint``: its child and everything hanging below it."""
-    children: dict[str, list[str]] = {}
-    for j in model.joints:
-        children.setdefault(j.parent, []).append(j.child)
-    out, stack = [], [joint.child]
-    while stack:
-        link = stack.pop()
-        out.append(link)
-        stack.extend(children.get(link, []))
-    return out
 
 
 class _LinkScenes:
@@ -129,7 +116,7 @@ def estimate_joint_values(
     d_link = {lk.name: scenes.distance(lk.name, pose @ link_poses[lk.name], pts_all) for lk in model.links}
     for _ in range(max(1, cfg.joint_passes)):
         for joint in model.movable_joints:
-            moving = _subtree(model, joint)
+            moving = joint_subtree(model, joint)
             link_poses = model.link_poses(values)
             d_rest = np.full(len(pts_all), np.inf)
             for lk in model.links:
