@@ -210,3 +210,20 @@ def test_run_forwards_gravity_to_map():
 
     argv = _map_argv(ns, "none", Path("out"))
     assert argv[argv.index("--gravity") + 1] == "z"
+
+
+def test_mapper_keeps_its_alignment_through_save_and_load(tmp_path):
+    from panoptic_mapping.mapper import PanopticMapper
+
+    m = PanopticMapper()
+    m.set_alignment(np.linalg.inv(TILT), {"mode": "file", "note": "test"})
+    pose = TILT @ look_at_pose(np.array([1.0, 0.0, 1.5]), np.array([2.0, 0.0, 1.0]))
+    assert np.allclose(m.local_pose(pose)[:3, 3], [1.0, 0.0, 1.5])  # back in the z-up room
+    m.recentre(np.array([1.0, 0.0, 0.0]))
+    assert np.allclose(m.local_pose(pose)[:3, 3], [0.0, 0.0, 1.5])  # alignment first, then the offset
+    m.save(tmp_path)
+    loaded = PanopticMapper.load(tmp_path)
+    assert np.allclose(loaded.alignment, np.linalg.inv(TILT)) and loaded.gravity == {"mode": "file", "note": "test"}
+    m.frames_integrated = 1
+    with pytest.raises(ValueError, match="before the first frame"):
+        m.set_alignment(np.eye(4))
