@@ -11,7 +11,9 @@ module estimates up from the depth images themselves (ROS-free, numpy + OpenCV):
    table tops and the ceiling give one or two horizontal directions, walls the vertical ones;
 3. candidates for up: a horizontal mode (normals face the camera, so a floor's normal *is* up and
    a ceiling's is down) or the cross product of two wall directions, each within ``max_tilt_deg``
-   of the cameras' mean image "up" (-y of the optical frame: cameras are held roughly upright);
+   of the cameras' mean image "up" (-y of the optical frame: cameras are held roughly upright), or
+   within ``max_pitch_deg`` of it when every camera's image x axis is horizontal to it (no roll:
+   a camera looking steeply down at a desk); a lone plane is only trusted as a floor;
    each candidate is scored by the area of the modes it explains (parallel or perpendicular to
    it: a Manhattan room), the best one wins;
 4. a least-squares refinement: up is the direction most parallel to the horizontal normals and
@@ -72,6 +74,10 @@ class GravityConfig(Settings):
     min_plane_share: float = setting(0.05, min=0.0, max=1.0)
     #: Up is at most this far (deg) from the cameras' mean image up (-y).
     max_tilt_deg: float = setting(60.0, min=5.0, max=89.0)
+    #: ... or, for cameras pitched steeply down (a desk seen from above), at most max_pitch_deg from it
+    #: when the cameras' image x axes stay within max_roll_deg (rms) of horizontal (no roll).
+    max_pitch_deg: float = setting(80.0, min=5.0, max=89.0)
+    max_roll_deg: float = setting(20.0, min=1.0, max=60.0)
     #: Modes within this angle (deg) of parallel / perpendicular to up count as explained by it.
     manhattan_tol_deg: float = setting(10.0, min=1.0, max=30.0)
     #: An estimate within this angle (deg) of +z is not applied: the input is taken as z up.
@@ -239,6 +245,7 @@ class GravityEstimator:
         self._normals: list[np.ndarray] = []
         self._weights: list[np.ndarray] = []
         self._camera_up = np.zeros(3)
+        self._camera_x: list[np.ndarray] = []
         self.frames = 0
 
     def add_frame(self, depth: np.ndarray, intrinsics: CameraIntrinsics, pose: np.ndarray) -> int:
@@ -246,6 +253,7 @@ class GravityEstimator:
         rot = np.asarray(pose, float)[:3, :3]
         n, w = frame_normals(depth, intrinsics, self.cfg, self._rng)
         self._camera_up += rot @ IMAGE_UP
+        self._camera_x.append(rot[:, 0])
         self.frames += 1
         if len(n):
             self._normals.append(n @ rot.T)
@@ -265,7 +273,15 @@ class GravityEstimator:
         modes = _modes(normals, weights, cfg.mode_cone_deg, cfg.min_mode_share, seed=cfg.seed)
         info = [([round(float(v), 4) for v in d], round(a / total, 4)) for d, a in modes]
         base = GravityEstimate(Z_UP.copy(), False, "none", "", 0.0, cam_up, self.frames, len(normals), info)
-        cos_tilt = np.cos(np.radians(cfg.max_tilt_deg))
+        cos_tilt, cos_pitch = np.cos(np.radians(cfg.max_tilt_deg)), np.cos(np.radians(cfg.max_pitch_deg))
+        xs = np.asarray(self._camera_x).reshape(-1, 3)
+        sin_roll = np.sin(np.radians(cfg.max_roll_deg))
+
+        def upright(u: np.ndarray) -> bool:
+            """u is up for cameras held upright: near their image up, or pitched but not rolled."""
+            c = float(u @ cam_up)
+            return c >= cos_tilt or (c >= cos_pitch and float(np.sqrt(np.mean((xs @ u) ** 2))) < sin_roll)
+
         min_area = cfg.min_plane_share * total
         candidates: list[tuple[float, float, np.ndarray, str]] = []  # (score, -angle to hint, up, method)
         for d, a in modes:
@@ -273,8 +289,13 @@ class GravityEstimator:
                 continue
             for sign, method in ((1.0, "floor"), (-1.0, "ceiling")):
                 u = sign * d
-                if u @ cam_up >= cos_tilt:
-                    candidates.append((self._explained(u, modes), -angle_deg(u, cam_up), u, method))
+                score = self._explained(u, modes)
+                # a lone plane is trusted as a floor only: a wall ahead of a camera pitched down looks
+                # like a ceiling, a floor under it never like anything else
+                if method == "ceiling" and score <= a * (1 + 1e-9):
+                    continue
+                if upright(u):
+                    candidates.append((score, -angle_deg(u, cam_up), u, method))
         for i, (di, ai) in enumerate(modes):
             for dj, aj in modes[i + 1:]:
                 if min(ai, aj) < min_area:
@@ -284,11 +305,12 @@ class GravityEstimator:
                     continue
                 u = c / np.linalg.norm(c)
                 u = u if u @ cam_up > 0 else -u
-                if u @ cam_up >= cos_tilt:
+                if upright(u):
                     candidates.append((self._explained(u, modes), -angle_deg(u, cam_up), u, "walls"))
         if not candidates:
             base.reason = ("no horizontal plane (floor, table, ceiling) and fewer than two wall directions seen "
-                           f"within {cfg.max_tilt_deg:.0f} deg of the cameras' image up")
+                           f"within {cfg.max_tilt_deg:.0f} deg of the cameras' image up (or {cfg.max_pitch_deg:.0f} "
+                           "deg for cameras without roll)")
             return base
         # most area explained (to 1 % of all area) first; then a floor over a ceiling over two walls (the
         # refinement below uses every plane anyway), then the candidate nearest the cameras' image up

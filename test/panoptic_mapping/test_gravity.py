@@ -38,11 +38,11 @@ def sim() -> RGBDSensorSimulator:
     return RGBDSensorSimulator(make_toy_scene(8, 0).items)
 
 
-def _views(sim, views, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+def _views(sim, views, seed: int = 0, roll: float = 0.0) -> list[tuple[np.ndarray, np.ndarray]]:
     rng = np.random.default_rng(seed)
     out = []
     for eye, target in views:
-        pose = look_at_pose(np.array(eye, float), np.array(target, float))
+        pose = look_at_pose(np.array(eye, float), np.array(target, float), roll=np.radians(roll))
         out.append((sim.render(pose, rng).depth, pose))  # noisy sensor depth
     return out
 
@@ -90,6 +90,36 @@ def test_one_wall_filling_the_view_gives_no_estimate_and_keeps_z(sim):
         assert len(g.modes) == 1 and g.modes[0][1] == pytest.approx(1.0)
         transform, note = alignment_from_estimate(g, GravityConfig())
         assert np.array_equal(transform, np.eye(4)) and "no estimate" in note and "+z is taken as up" in note
+
+
+def _pitched(pitch_deg: float, eye=(0.0, 0.0, 1.4), yaws=np.arange(6) * 0.3):
+    eye = np.array(eye)
+    p = np.radians(pitch_deg)
+    return [(tuple(eye), tuple(eye + [np.cos(y) * np.cos(p), np.sin(y) * np.cos(p), -np.sin(p)])) for y in yaws]
+
+
+@pytest.mark.parametrize("pitch", [70, 78])
+def test_cameras_looking_steeply_down_at_the_floor(sim, pitch):
+    # image up is ~70 deg from up: beyond max_tilt_deg, but the cameras do not roll (image x horizontal)
+    g = _estimate(sim, _views(sim, _pitched(pitch)), TILT)
+    assert g.ok and g.method == "floor" and angle_deg(g.camera_up, TILT[:3, :3] @ Z) > 60
+    assert angle_deg(g.up, TILT[:3, :3] @ Z) < 2.0
+    # rolled cameras give no such licence: rolled 40 deg about the optical axis, image x is 12-13 deg
+    # off horizontal (steep pitch makes roll mostly a yaw): accepted by the default max_roll_deg (20),
+    # refused by 5 deg: no estimate, +z kept
+    frames = _views(sim, _pitched(pitch), roll=40.0)
+    assert _estimate(sim, frames, TILT).ok
+    rolled = _estimate(sim, frames, TILT, GravityConfig(max_roll_deg=5.0))
+    assert not rolled.ok and "without roll" in rolled.reason
+
+
+def test_a_lone_wall_ahead_of_a_camera_pitched_down_is_no_ceiling(sim):
+    # 0.5 m from the x = 3 wall, looking 45 deg down at it: only that wall in view
+    views = _pitched(45, eye=(2.5, 0.0, 2.0), yaws=[-0.1, 0.0, 0.1])
+    frames = _views(sim, views)
+    assert all(d[d > 0].max() < 1.6 for d, _ in frames)  # nothing but the near wall
+    g = _estimate(sim, frames, TILT)
+    assert not g.ok and len(g.modes) == 1
 
 
 def test_two_walls_without_floor_still_give_up(sim):
