@@ -92,10 +92,12 @@ def test_one_wall_filling_the_view_gives_no_estimate_and_keeps_z(sim):
         assert np.array_equal(transform, np.eye(4)) and "no estimate" in note and "+z is taken as up" in note
 
 
-def _pitched(pitch_deg: float, eye=(0.0, 0.0, 1.4), yaws=np.arange(6) * 0.3):
-    eye = np.array(eye)
+def _pitched(pitch_deg: float, eye=(0.0, 0.0, 1.4), yaws=(0.0, 0.3, 0.6, 0.9, 1.2, 1.5)):
+    """Views from `eye` pitched `pitch_deg` down, at these yaws (rad)."""
+    e = np.array(eye)
     p = np.radians(pitch_deg)
-    return [(tuple(eye), tuple(eye + [np.cos(y) * np.cos(p), np.sin(y) * np.cos(p), -np.sin(p)])) for y in yaws]
+    return [(tuple(e), tuple(e + np.array([np.cos(y) * np.cos(p), np.sin(y) * np.cos(p), -np.sin(p)])))
+            for y in yaws]
 
 
 @pytest.mark.parametrize("pitch", [70, 78])
