@@ -76,6 +76,25 @@ class PanopticMapper:
         #: relative to it, and every output (voxels, meshes, entities) is in these local coordinates.
         #: Non-zero for recordings far from their frame's origin (UTM-like coordinates), see `recentre`.
         self.origin_offset = np.zeros(3)
+        #: Transform from the input's world frame to the gravity-aligned (z up) map frame, applied to
+        #: every camera pose before `origin_offset` (identity: the input is z up). See `set_alignment`.
+        self.alignment = np.eye(4)
+        #: How the alignment was found (mode, estimate, angle): written to map.json.
+        self.gravity: dict = {}
+
+    def set_alignment(self, transform: np.ndarray, info: dict | None = None) -> None:
+        """Integrate future poses pre-multiplied by `transform` (input world -> gravity-aligned map frame)."""
+        t = np.asarray(transform, dtype=np.float64).reshape(4, 4)
+        if self.frames_integrated and not np.allclose(t, self.alignment):
+            raise ValueError("the gravity alignment can only be chosen before the first frame is integrated")
+        self.alignment = t.copy()
+        self.gravity = dict(info or {})
+
+    def aligned_pose(self, pose: np.ndarray) -> np.ndarray:
+        """Camera pose in the gravity-aligned frame (before recentring)."""
+        if np.array_equal(self.alignment, np.eye(4)):
+            return pose
+        return self.alignment @ np.asarray(pose, dtype=np.float64)
 
     def recentre(self, offset: np.ndarray) -> None:
         """Integrate future poses relative to `offset` (before the first frame, or when resuming)."""
@@ -84,7 +103,8 @@ class PanopticMapper:
         self.origin_offset = np.asarray(offset, dtype=np.float64).reshape(3).copy()
 
     def local_pose(self, pose: np.ndarray) -> np.ndarray:
-        """Camera-to-map `pose` expressed relative to the map's origin (float64)."""
+        """Camera-to-map `pose` gravity aligned and expressed relative to the map's origin (float64)."""
+        pose = self.aligned_pose(pose)
         if not np.any(self.origin_offset):
             return pose
         out = np.array(pose, dtype=np.float64)
@@ -485,7 +505,9 @@ class PanopticMapper:
                 "frames_integrated": self.frames_integrated, "keyframes": self.keyframes,
                 "classes": {str(k): asdict(v) for k, v in self.classes.items()},
                 # input map frame = these coordinates + origin_offset_m (non-zero for recentred maps)
-                "origin_offset_m": [float(v) for v in self.origin_offset]}
+                "origin_offset_m": [float(v) for v in self.origin_offset],
+                # map point = alignment @ input point - origin_offset_m (alignment: input world -> z up)
+                "gravity_alignment": self.alignment.tolist(), "gravity": self.gravity}
         (folder / "map.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
         return folder / "map.npz"
 
@@ -511,4 +533,6 @@ class PanopticMapper:
         mapper.frames_integrated = int(meta.get("frames_integrated", 0))
         mapper.keyframes = int(meta.get("keyframes", 0))
         mapper.origin_offset = np.asarray(meta.get("origin_offset_m", [0.0, 0.0, 0.0]), dtype=np.float64)
+        mapper.alignment = np.asarray(meta.get("gravity_alignment", np.eye(4).tolist()), dtype=np.float64).reshape(4, 4)
+        mapper.gravity = dict(meta.get("gravity", {}))
         return mapper

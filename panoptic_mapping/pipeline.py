@@ -6,6 +6,7 @@ itself (asynchronous segmentation service), but with the same gating and convers
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import re
@@ -21,6 +22,16 @@ from panoptic_mapping.dataio import DataInputConfig
 from panoptic_mapping.dataio.diagnose import explain_empty
 from panoptic_mapping.dataio.registry import open_dataset
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
+from panoptic_mapping.gravity import (
+    GravityConfig,
+    GravityEstimate,
+    GravityEstimator,
+    alignment_from_estimate,
+    angle_deg,
+    load_alignment,
+    rotation_angle_deg,
+    up_of_alignment,
+)
 from panoptic_mapping.mapper import ClassMeta, PanopticMapper
 from recon_core.classes import ClassTable, load_class_table
 from recon_core.entity import Entity, save_entities
@@ -90,9 +101,64 @@ class MappingRun:
         return d
 
 
+def estimate_gravity(source: str | Path, data_config: DataInputConfig | None = None,
+                     cfg: GravityConfig | None = None) -> GravityEstimate:
+    """Up of a recording's world frame from the depth of its first posed frames (``cfg.window_frames``
+    frames, every ``cfg.stride``-th one, within the data input's own start/stride/max_frames)."""
+    data_config = data_config or DataInputConfig()
+    cfg = cfg or data_config.gravity
+    window = cfg.window_frames
+    if data_config.max_frames:
+        window = max(1, min(window, -(-data_config.max_frames // cfg.stride)))
+    dcfg = dataclasses.replace(data_config, stride=data_config.stride * cfg.stride, max_frames=window,
+                               require_pose=True)
+    est = GravityEstimator(cfg)
+    with open_dataset(source, dcfg) as loader:
+        for frame in loader:
+            if frame.pose is not None:
+                est.add_frame(frame.depth, frame.intrinsics, frame.pose)
+    return est.estimate()
+
+
+def resolve_gravity(source: str | Path, data_config: DataInputConfig | None = None,
+                    cfg: GravityConfig | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+    """The transform input world -> gravity-aligned map frame for ``cfg.mode`` (auto | z | a file), and
+    what was done (for map.json / summary.json): mode, the input's up, the angle corrected, a note."""
+    data_config = data_config or DataInputConfig()
+    cfg = cfg or data_config.gravity
+    mode = cfg.mode or "auto"
+    info: dict[str, Any] = {"mode": mode}
+    if mode == "z":
+        transform = np.eye(4)
+        info["note"] = "gravity z: the input's +z is taken as up"
+    elif mode == "auto":
+        est = estimate_gravity(source, data_config, cfg)
+        transform, note = alignment_from_estimate(est, cfg)
+        info["estimate"] = est.as_dict()
+        info["note"] = note
+        if not est.ok:
+            log.warning("%s", note)
+        elif est.angle_deg > cfg.warn_deg:
+            log.warning("the input's up is %.1f deg from its +z (estimated from the %s): camera poses are rotated "
+                        "into a gravity-aligned map frame (gravity_alignment in map.json)", est.angle_deg, est.method)
+    else:
+        transform = load_alignment(mode)
+        info["mode"], info["file"] = "file", mode
+        info["note"] = f"gravity from {mode}: map rotated by {rotation_angle_deg(transform):.1f} deg"
+        up = up_of_alignment(transform)
+        if angle_deg(up, np.array([0.0, 0.0, 1.0])) > cfg.warn_deg:
+            log.warning("the input's up is %.1f deg from its +z (from %s): camera poses are rotated into a "
+                        "gravity-aligned map frame", angle_deg(up, np.array([0.0, 0.0, 1.0])), mode)
+    up = up_of_alignment(transform)
+    info["applied"] = not np.allclose(transform, np.eye(4))
+    info["rotation_deg"] = round(rotation_angle_deg(transform), 3)
+    info["input_up"] = [round(float(v), 6) for v in up]
+    return transform, info
+
+
 def _choose_origin(mapper: PanopticMapper, pose: np.ndarray, recentre_beyond_m: float) -> None:
     """Recentre a fresh map on the first pose when that pose is far from its frame's origin."""
-    t = np.asarray(pose, dtype=np.float64)[:3, 3]
+    t = np.asarray(mapper.aligned_pose(pose), dtype=np.float64)[:3, 3]
     dist = float(np.linalg.norm(t))
     if dist > WARN_BEYOND_M:
         log.warning("the first camera pose is %.0f km from the map frame's origin: geodetic (UTM-like) coordinates "
@@ -129,6 +195,7 @@ def map_recording(
     mapper: PanopticMapper | None = None,
     recentre_beyond_m: float = RECENTRE_BEYOND_M,
     class_table: ClassTable | None = None,
+    gravity: GravityConfig | None = None,
 ) -> tuple[PanopticMapper, MappingRun]:
     """Integrate every posed frame of `source`; segment keyframes only (when gating is enabled).
 
@@ -139,7 +206,8 @@ def map_recording(
     whose first pose lies farther than `recentre_beyond_m` from the origin is mapped relative to that
     pose (`mapper.origin_offset`; 0 disables). Raises DatasetError, saying why and what to do, when
     no frame could be mapped. class_table: the table the segmenter's class ids come from (default
-    config/classes.yaml).
+    config/classes.yaml). gravity (default ``data_config.gravity``): how the input's up is found; a
+    fresh map is gravity aligned (``resolve_gravity``), a resumed one keeps its alignment.
     """
     from tqdm import tqdm
 
@@ -149,6 +217,11 @@ def map_recording(
     geometry_only = segmenter is None
     run = MappingRun()
     t_start = time.perf_counter()
+    data_config = data_config or DataInputConfig()
+    if not mapper.frames_integrated and not mapper.gravity:
+        transform, info = resolve_gravity(source, data_config, gravity or data_config.gravity)
+        mapper.set_alignment(transform, info)
+        log.info("%s", info["note"])
     with open_dataset(source, data_config) as loader:
         total = len(loader) if hasattr(loader, "__len__") else None
         frames = iter(loader)
@@ -219,6 +292,7 @@ def write_map_outputs(out: str | Path, mapper: PanopticMapper, run: MappingRun,
         "run": run.summary(), "mode": mapper.config.mode, "entities": len(ents),
         "panoptic_entities": sum(1 for e in ents if e.class_id != BACKGROUND),
         "origin_offset_m": [float(v) for v in mapper.origin_offset],
+        "gravity": mapper.gravity, "gravity_alignment": mapper.alignment.tolist(),
         "depth_range_m": [mapper.config.tsdf.min_depth_m, mapper.config.tsdf.max_depth_m],
         "entities_per_class": dict(sorted(per_class.items())), "extract_s": round(extract_s, 3),
         "map_blocks": mapper.tsdf.num_blocks, "map_memory_mb": round(mapper.tsdf.memory_bytes() / 2**20, 1),

@@ -36,7 +36,7 @@ CATEGORIES: tuple[str, ...] = ("layout", "rigid", "articulated")
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 _CLASS_KEYS = {"id", "name", "category", "is_thing", "movable", "density", "coco"}
 #: Keys a class may leave out (default false).
-_OPTIONAL_CLASS_KEYS = {"round"}
+_OPTIONAL_CLASS_KEYS = {"round", "max_size_m"}
 _TOP_KEYS = {"version", "classes", "confusion_groups"}
 
 
@@ -55,6 +55,10 @@ class ClassInfo:
     #: The body is a solid of revolution about the vertical (cups, bottles): its two horizontal
     #: extents are one radius, so CAD alignment fits them as one scale.
     round: bool = False
+    #: Largest extent (m) an instance of the class can have (None: unknown). A mapped instance whose
+    #: mesh holds a horizontal or vertical plane much larger than this has swallowed layout surface
+    #: (a detection mask bleeding onto the wall): the contact-graph builder gives that plane back.
+    max_size_m: float | None = None
 
     @property
     def is_layout(self) -> bool:
@@ -155,6 +159,10 @@ def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
         ):
             raise _fail(path, where, f"density must be a positive number or null, got {density!r}")
         density = float(density)
+    max_size = raw.get("max_size_m")
+    if max_size is not None and (isinstance(max_size, bool) or not isinstance(max_size, (int, float))
+                                 or not math.isfinite(max_size) or max_size <= 0):
+        raise _fail(path, where, f"max_size_m must be a positive number, got {max_size!r}")
     if raw["category"] != "layout" and density is None:
         raise _fail(path, where, "object classes need a density")
     if raw["category"] == "layout" and raw["movable"]:
@@ -171,6 +179,7 @@ def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
         density=density,
         coco_names=tuple(coco),
         round=raw.get("round", False),
+        max_size_m=float(max_size) if max_size is not None else None,
     )
 
 

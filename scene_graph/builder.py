@@ -24,10 +24,11 @@ from recon_core.contact_graph import ROOT_ID, ContactGraph, GraphNode, SupportEd
 from recon_core.entity import Entity, EntityError
 from scene_graph.blas import single_blas_thread
 from scene_graph.broadphase import candidate_pairs
-from scene_graph.classify import LAYOUT, classify
+from scene_graph.classify import LAYOUT, class_info, classify
 from scene_graph.config import SceneGraphConfig, load_scene_graph_config
 from scene_graph.features import NodeFeatures, compute_features
 from scene_graph.fragments import drop_fragments
+from scene_graph.geometric_layout import concat_entities, give_up_layout_planes, layout_from_geometry
 from scene_graph.joints import SupportJointTable, load_support_joints
 from scene_graph.layout import split_layout
 from scene_graph.merge import fragment_hosts, merged_entity
@@ -75,11 +76,21 @@ class ContactGraphBuilder:
         #: Merged over-segmented nodes of the last build, by their members' (id, revision, size).
         self._merged: dict[tuple, NodeFeatures] = {}
         self.skipped: dict[int, str] = {}
+        #: Layout from geometry: the latest unlabelled surface, the planes things gave up (by thing id),
+        #: the derived layout entities (role -> id) and what was derived (graph.stats["geometric_layout"]).
+        self._unlabelled: Entity | None = None
+        self._given_up: dict[int, Entity] = {}
+        self._derived: dict[str, int] = {}
+        self._layout_key: tuple | None = None
+        self._layout_revision = 0
+        self.layout_info: dict[str, dict[str, int]] = {}
 
     @property
     def ids(self) -> list[int]:
-        """Ids of the entities held (source ids: a split layout entity is listed once)."""
-        return sorted(self._cache)
+        """Ids of the entities held (source ids: a split layout entity is listed once; layout derived
+        from geometry is not listed: it has no source entity)."""
+        derived = set(self._derived.values())
+        return sorted(i for i in self._cache if i not in derived)
 
     def features(self, entity_id: int) -> NodeFeatures:
         """The (first) node of an entity; its ``entity.revision`` is the entity's revision."""
@@ -87,39 +98,140 @@ class ContactGraphBuilder:
 
 
     def update(self, entities: Iterable[Entity]) -> list[int]:
-        """Add or refresh entities; only those with a new (id, revision) are recomputed. Returns them."""
+        """Add or refresh entities; only those with a new (id, revision) are recomputed. Returns them.
+
+        With ``geometric_layout.enabled``: things give up layout planes larger than their class can be,
+        and while no floor or wall entity is held, floor / wall / ceiling entities are derived from
+        the unlabelled surface (``geometric_layout.py``; ids ``geometric_layout.id_base`` + 0/1/2).
+        """
+        gl = self.cfg.geometric_layout
         rebuilt = []
         for e in entities:
-            if e.class_name in self.cfg.ignore_classes:  # e.g. the map's unclaimed surface (entity 0)
-                self._cache.pop(e.id, None)
-                self.skipped[e.id] = f"class {e.class_name!r} is ignored"
-                continue
-            if e.id == ROOT_ID:
-                raise EntityError(f"entity {e.name!r}: id {ROOT_ID} is reserved for the scene root")
-            cached = self._cache.get(e.id)
-            if cached is not None and cached.revision == e.revision and e.id not in self.skipped:
-                continue
-            sup = self.cfg.support
-            try:
-                with single_blas_thread():
-                    parts = split_layout(e, self.cfg.layout, sup.wall_classes, sup.floor_classes + sup.ceiling_classes)
-                    if classify(e.class_name, e.category, self.cfg.class_table).category != LAYOUT:
-                        parts = [drop_fragments(e, self.cfg.fragments)]
-                    feats = [compute_features(p, self.cfg) for p in parts]
-            except EntityError as exc:
-                log.warning("skipping entity %s: %s", e.id, exc)
-                self._cache.pop(e.id, None)
-                self.skipped[e.id] = str(exc)
-                continue
-            self.skipped.pop(e.id, None)
-            self._cache[e.id] = _Cached(e.revision, feats, len(feats) > 1)
-            rebuilt.append(e.id)
+            if gl.enabled and e.class_name in gl.source_classes:
+                self._unlabelled = e
+            if self._update_one(e):
+                rebuilt.append(e.id)
+        if gl.enabled:
+            rebuilt += self._update_geometric_layout()
         return rebuilt
 
+    def _update_one(self, e: Entity) -> bool:
+        if e.class_name in self.cfg.ignore_classes:  # e.g. the map's unclaimed surface (entity 0)
+            self._cache.pop(e.id, None)
+            self.skipped[e.id] = f"class {e.class_name!r} is ignored"
+            return False
+        if e.id == ROOT_ID:
+            raise EntityError(f"entity {e.name!r}: id {ROOT_ID} is reserved for the scene root")
+        cached = self._cache.get(e.id)
+        if cached is not None and cached.revision == e.revision and e.id not in self.skipped:
+            return False
+        sup = self.cfg.support
+        revision = e.revision
+        try:
+            with single_blas_thread():
+                e = self._give_up_layout(e)
+                parts = split_layout(e, self.cfg.layout, sup.wall_classes, sup.floor_classes + sup.ceiling_classes)
+                if classify(e.class_name, e.category, self.cfg.class_table).category != LAYOUT:
+                    parts = [drop_fragments(e, self.cfg.fragments)]
+                feats = [compute_features(p, self.cfg) for p in parts]
+        except EntityError as exc:
+            log.warning("skipping entity %s: %s", e.id, exc)
+            self._cache.pop(e.id, None)
+            self.skipped[e.id] = str(exc)
+            return False
+        self.skipped.pop(e.id, None)
+        self._cache[e.id] = _Cached(revision, feats, len(feats) > 1)
+        return True
+
+    def _give_up_layout(self, e: Entity) -> Entity:
+        """The thing without the layout planes it cannot own (recorded for the derived layout)."""
+        gl = self.cfg.geometric_layout
+        self._given_up.pop(e.id, None)
+        if not gl.enabled or not e.has_faces or e.id in self._derived.values():
+            return e
+        info = class_info(e.class_name, self.cfg.class_table)
+        if info is None or info.is_layout or not info.max_size_m:
+            return e
+        kept, given = give_up_layout_planes(e, info.max_size_m, gl)
+        if given is not None:
+            self._given_up[e.id] = given
+        return kept
+
+    def _has_labelled_layout(self) -> bool:
+        sup = self.cfg.support
+        layout = set(sup.floor_classes) | set(sup.wall_classes)
+        derived = set(self._derived.values())
+        return any(c.nodes and c.nodes[0].entity.class_name in layout
+                   for i, c in self._cache.items() if i not in derived)
+
+    def _update_geometric_layout(self) -> list[int]:
+        """(Re)derive floor / wall / ceiling from the unlabelled surface when the map has no layout entity."""
+        gl = self.cfg.geometric_layout
+        for i in [i for i in self._given_up if i not in self._cache]:
+            del self._given_up[i]  # removed things give nothing
+        if self._has_labelled_layout():
+            self._drop_derived()
+            self._layout_key = None  # derive again should the labelled layout go
+            return []
+        pieces = [self._given_up[i] for i in sorted(self._given_up)]
+        u = self._unlabelled
+        key = ((u.id, u.revision, len(u.faces)) if u is not None else None,
+               tuple((i, len(self._given_up[i].faces)) for i in sorted(self._given_up)))
+        if key == self._layout_key:
+            return []
+        self._layout_key = key
+        self._drop_derived()
+        if u is None and not pieces:
+            return []
+        base = u if u is not None else pieces[0]
+        surface = concat_entities(base, pieces if u is not None else pieces[1:])
+        derived = set(self._derived.values())
+        context = [c.nodes[0].entity for i, c in self._cache.items() if i not in derived and c.nodes]
+        with single_blas_thread():
+            found = layout_from_geometry(surface, context, gl, self.cfg.layout)
+        self._layout_revision += 1
+        table = self.cfg.class_table
+        rebuilt = []
+        for k, role in enumerate(("floor", "wall", "ceiling")):
+            if role not in found:
+                continue
+            classes = {"floor": self.cfg.support.floor_classes, "wall": self.cfg.support.wall_classes,
+                       "ceiling": self.cfg.support.ceiling_classes}[role]
+            name = classes[0] if classes else role
+            nc = classify(name, "layout", table)
+            eid = gl.id_base + k
+            ent = Entity(eid, name, found[role].vertices, found[role].faces, name=name, class_id=nc.class_id,
+                         instance_id=0, category=LAYOUT, is_thing=False, confidence=1.0,
+                         revision=self._layout_revision)
+            self._derived[role] = eid
+            if self._update_one(ent):
+                rebuilt.append(eid)
+        self.layout_info = {role: {"id": self._derived[role], "faces": len(found[role].faces)}
+                            for role in self._derived}
+        if found:
+            log.info("layout from geometry: %s", ", ".join(f"{r} ({v['faces']} faces)"
+                                                            for r, v in self.layout_info.items()))
+        return rebuilt
+
+    def _drop_derived(self) -> None:
+        for eid in self._derived.values():
+            self._cache.pop(eid, None)
+            self.skipped.pop(eid, None)
+        self._derived.clear()
+        self.layout_info = {}
+
     def remove(self, ids: Iterable[int]) -> None:
+        derived = set(self._derived.values())
         for i in ids:
+            if int(i) in derived:
+                continue
             self._cache.pop(int(i), None)
             self.skipped.pop(int(i), None)
+            self._given_up.pop(int(i), None)
+            if self._unlabelled is not None and self._unlabelled.id == int(i):
+                self._unlabelled = None
+        if self.cfg.geometric_layout.enabled:
+            self._update_geometric_layout()
 
     def build(self, name: str = "", frame_id: str = "map") -> ContactGraph:
         """Relations over the cached nodes: supports (Eqs. (1)-(3)), refinement, proximal pairs."""
@@ -158,7 +270,7 @@ class ContactGraphBuilder:
                 graph.skipped[i] = f"fragment of node {host} (same class, box inside it): merged"
         t2 = time.perf_counter()
         graph.stats = {
-            "layout_parts": layout_parts, "merged_fragments": merged,
+            "layout_parts": layout_parts, "merged_fragments": merged, "geometric_layout": dict(self.layout_info),
             "nodes": len(feats), "support_candidate_pairs": support_pairs, "support_plane_tests": support.plane_tests,
             "proximal_broadphase_pairs": prox.broadphase_pairs, "proximal_exact_tests": prox.exact_tests,
             "support_s": t1 - t0, "relations_s": t2 - t1,
@@ -171,7 +283,7 @@ class ContactGraphBuilder:
         next_id = max(self.cfg.layout.part_id_base, max(self._cache, default=0) + 1)
         feats: list[NodeFeatures] = []
         parts: dict[int, list[int]] = {}
-        for sid in self.ids:
+        for sid in sorted(self._cache):
             cached = self._cache[sid]
             if not cached.split:
                 feats.extend(cached.nodes)

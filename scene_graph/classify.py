@@ -11,7 +11,7 @@ import logging
 from dataclasses import dataclass
 from functools import lru_cache
 
-from recon_core.classes import CATEGORIES, ClassTable, load_class_table
+from recon_core.classes import CATEGORIES, ClassInfo, ClassTable, load_class_table
 
 log = logging.getLogger(__name__)
 
@@ -49,3 +49,9 @@ def classify(class_name: str, category_hint: str = "", table_path: str = "") -> 
         _warned.add(class_name)
         log.warning("class %r is not in the class table: treated as a rigid object", class_name)
     return NodeClass(class_name, -1, RIGID, False, False)
+
+
+def class_info(class_name: str, table_path: str = "") -> ClassInfo | None:
+    """The class table's entry of ``class_name`` (None for classes it does not know)."""
+    table = _table(table_path)
+    return table.by_name(class_name) if class_name in table else None

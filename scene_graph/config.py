@@ -85,6 +85,45 @@ class LayoutConfig(Settings):
 
 
 @dataclass
+class GeometricLayoutConfig(Settings):
+    """Layout from geometry (``geometric_layout.py``) for segmenters without layout classes (COCO
+    detectors). NOT in the paper. Lengths in m, areas in m^2, in the gravity-aligned map frame."""
+
+    enabled: bool = True
+    #: Entities whose surface is searched for floor, walls and ceiling (the map's unclaimed surface).
+    source_classes: list[str] = field(default_factory=lambda: ["unknown"])
+    #: Faces within this of a horizontal group's height, or of a planar part, belong to it.
+    plane_thickness: float = setting(0.04, min=0.0, min_exclusive=True)
+    #: Layout elements: faces this far above/below the floor (ceiling) height join it (both faces of a slab).
+    thickness: float = setting(0.08, min=0.0)
+    #: The floor: the lowest horizontal group with at least this area and floor_min_share of the largest.
+    floor_min_area: float = setting(1.0, min=0.0)
+    floor_min_share: float = setting(0.2, min=0.0, max=1.0)
+    #: The ceiling: the highest horizontal group this far above the floor, with this area and share of
+    #: the floor's area.
+    ceiling_min_height: float = setting(1.8, min=0.0)
+    ceiling_min_area: float = setting(1.0, min=0.0)
+    ceiling_min_floor_share: float = setting(0.25, min=0.0)
+    #: A wall: a vertical planar part with this area, length and height ...
+    wall_min_area: float = setting(0.75, min=0.0)
+    wall_min_length: float = setting(0.5, min=0.0)
+    wall_min_height: float = setting(1.0, min=0.0)
+    #: ... with at most this share of the map's surface area more than wall_outside_margin beyond it.
+    wall_outside_share: float = setting(0.05, min=0.0, max=1.0)
+    wall_outside_margin: float = setting(0.15, min=0.0)
+    #: Things never claim layout: a horizontal/vertical planar part of a thing's mesh longer than
+    #: size_factor x its class's max_size_m (config/classes.yaml), with at least give_up_min_area and
+    #: give_up_min_share of its area, is given up to the layout.
+    size_factor: float = setting(1.25, min=1.0)
+    give_up_min_area: float = setting(0.3, min=0.0)
+    give_up_min_share: float = setting(0.2, min=0.0, max=1.0)
+    #: Coplanar faces farther apart than this (m) are two planar parts.
+    plane_max_gap: float = setting(0.3, min=0.0)
+    #: Ids of the derived floor, wall and ceiling entities: id_base, +1, +2 (must exceed every map id).
+    id_base: int = setting(100000, min=1)
+
+
+@dataclass
 class FragmentConfig(Settings):
     """Stray fragments of object meshes (``fragments.py``); not in the paper (clean meshes assumed)."""
 
@@ -211,6 +250,7 @@ class SceneGraphConfig(Settings):
     box: BoxConfig = field(default_factory=BoxConfig)
     planes: PlaneConfig = field(default_factory=PlaneConfig)
     layout: LayoutConfig = field(default_factory=LayoutConfig)
+    geometric_layout: GeometricLayoutConfig = field(default_factory=GeometricLayoutConfig)
     fragments: FragmentConfig = field(default_factory=FragmentConfig)
     merge: MergeConfig = field(default_factory=MergeConfig)
     support: SupportConfig = field(default_factory=SupportConfig)

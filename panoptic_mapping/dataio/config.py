@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from panoptic_mapping.gravity import GravityConfig
 from recon_core.config import Settings
 
 
@@ -25,7 +26,7 @@ class DataInputConfig(Settings):
     """How frames are read, synchronised and posed."""
 
     topics: TopicConfig = field(default_factory=TopicConfig)
-    #: Gravity-aligned (z up) fixed frame the camera poses are expressed in.
+    #: Fixed frame the camera poses are expressed in (bags); its up is found by `gravity`.
     map_frame: str = "map"
     #: Frame of the camera's optical axis; empty: the color image's header.frame_id.
     camera_frame: str = ""
@@ -47,3 +48,6 @@ class DataInputConfig(Settings):
     intrinsics_file: str = ""
     #: Folder datasets: depth PNG units per metre (TUM: 5000, 7-Scenes: 1000); 0 = dataset default.
     depth_scale: float = 0.0
+    #: Which way is up in the input's world frame (auto: estimated from depth; z; a 4x4 file):
+    #: poses are rotated into a gravity-aligned map frame before mapping (panoptic_mapping/gravity.py).
+    gravity: GravityConfig = field(default_factory=GravityConfig)

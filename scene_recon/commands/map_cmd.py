@@ -44,6 +44,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="ignore depth readings beyond M metres (default tsdf.max_depth_m of config/mapper.yaml: 4.0)")
     p.add_argument("--min-depth", type=float, metavar="M",
                    help="ignore depth readings nearer than M metres (default tsdf.min_depth_m: 0.1)")
+    p.add_argument("--gravity", metavar="auto|z|FILE",
+                   help="up of the input's world frame (default gravity.mode of config/data.yaml: auto): auto "
+                   "estimates it from the depth of the first frames (floor, walls) and rotates the poses into a "
+                   "z-up map frame (left as is when within 1 deg of +z); z trusts the input; FILE: a 4x4 transform "
+                   "(text) from the input's world frame to a z-up frame. The rotation is written to map.json "
+                   "(gravity_alignment)")
     p.add_argument("--no-keyframes", action="store_true", help="segment every frame")
     p.add_argument("--resume", help="continue from a map saved in this folder")
     p.add_argument("--seed", type=int, default=0, help="oracle noise seed")
@@ -119,6 +125,8 @@ def run(args: argparse.Namespace) -> int:
     from scene_recon.synthetic.overview import render_map_picture
 
     data_cfg = data_config_from_args(args)
+    if getattr(args, "gravity", None):
+        data_cfg.gravity.mode = args.gravity
     name, why = choose_segmenter(args)
     if not args.json:
         print(f"segmenter: {name} ({why})")
@@ -191,6 +199,9 @@ def print_report(summary: dict, ents: list, out: str, written: list[str]) -> Non
         off = summary["origin_offset_m"]
         print(f"map recentred: its origin is at ({off[0]:.0f}, {off[1]:.0f}, {off[2]:.0f}) m of the input map frame "
               "(origin_offset_m in map.json / summary.json; add it to map back)")
+    gravity = summary.get("gravity") or {}
+    if gravity.get("note"):
+        print(gravity["note"])
     print(f"map: {summary['map_blocks']} voxel blocks, {summary['map_memory_mb']} MB, "
           f"{summary['global_segments']} global segments")
     print(f"{'id':>5s} {'class':12s} {'instance':>8s} {'conf':>5s} {'vertices':>8s}")

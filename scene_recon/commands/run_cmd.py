@@ -32,6 +32,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--classes", metavar="YAML", help="class table for `map` (default config/classes.yaml)")
     p.add_argument("--max-depth", type=float, metavar="M", help="map: ignore depth readings beyond M metres")
     p.add_argument("--min-depth", type=float, metavar="M", help="map: ignore depth readings nearer than M metres")
+    p.add_argument("--gravity", metavar="auto|z|FILE",
+                   help="map: up of the input's world frame (auto: estimated from depth; z; a 4x4 file), "
+                   "see `map --help`")
     p.add_argument("--method", choices=("ours", "paper"), default="ours", help="CAD replacement method")
     p.add_argument("--seeds-per-class", type=int, default=10, metavar="N", help="procedural CAD models per class")
     add_data_options(p)
@@ -43,7 +46,8 @@ def _map_argv(args: argparse.Namespace, segmenter: str, out: Path) -> list[str]:
     for opt, name in (("--model", args.model), ("--model-config", args.model_config), ("--classes", args.classes)):
         if name:
             argv += [opt, str(name)]
-    for opt, value in (("--max-depth", args.max_depth), ("--min-depth", args.min_depth)):
+    for opt, value in (("--max-depth", args.max_depth), ("--min-depth", args.min_depth),
+                       ("--gravity", getattr(args, "gravity", None))):
         if value is not None:
             argv += [opt, str(value)]
     return argv + data_options_argv(args)

@@ -1,0 +1,178 @@
+"""Layout from geometry: floor, walls and ceiling found in the map's unlabelled surface when the
+segmenter has no layout classes, and things giving up layout planes larger than their class."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from recon_core.entity import Entity
+from scene_graph.builder import ContactGraphBuilder, build_contact_graph
+from scene_graph.config import GeometricLayoutConfig, SceneGraphConfig
+from scene_graph.geometric_layout import concat_entities, give_up_layout_planes, layout_from_geometry
+from scene_recon.synthetic.scene import build_scene, entities_from_ground_truth
+
+
+def patch(origin, u, v, nu: int = 20, nv: int = 12) -> trimesh.Trimesh:
+    """A planar grid of triangles (a TSDF-like single surface) spanned by u and v from origin."""
+    origin, u, v = (np.asarray(a, float) for a in (origin, u, v))
+    a, b = np.meshgrid(np.linspace(0, 1, nu + 1), np.linspace(0, 1, nv + 1), indexing="ij")
+    verts = origin + a.reshape(-1, 1) * u + b.reshape(-1, 1) * v
+    idx = np.arange((nu + 1) * (nv + 1)).reshape(nu + 1, nv + 1)
+    q = np.c_[idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()]
+    return trimesh.Trimesh(verts, np.r_[q[:, [0, 1, 2]], q[:, [0, 2, 3]]], process=False)
+
+
+def box(lo, hi) -> trimesh.Trimesh:
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    return trimesh.creation.box(extents=hi - lo).apply_translation((lo + hi) / 2)
+
+
+def unknown(meshes) -> Entity:
+    """The map's unclaimed surface (entity 0, class "unknown") made of these meshes."""
+    return Entity.from_mesh(0, "unknown", "unknown", trimesh.util.concatenate(list(meshes)), class_id=-1,
+                            is_thing=False, category="unknown")
+
+
+# 4 m x 3 m room, 2.5 m high, single-surface (TSDF-like) layout
+WALLS = {"west": ([-2, -1.5, 0], [0, 3, 0]), "east": ([2, -1.5, 0], [0, 3, 0]),
+         "south": ([-2, -1.5, 0], [4, 0, 0]), "north": ([-2, 1.5, 0], [4, 0, 0])}
+
+
+def room_surface(ceiling: bool = True, walls=tuple(WALLS)) -> list[trimesh.Trimesh]:
+    out = [patch([-2, -1.5, 0], [4, 0, 0], [0, 3, 0], 40, 30)]  # floor
+    out += [patch(WALLS[w][0], WALLS[w][1], [0, 0, 2.5]) for w in walls]
+    if ceiling:
+        out.append(patch([-2, -1.5, 2.5], [4, 0, 0], [0, 3, 0], 40, 30))
+    return out
+
+
+def _parents(g) -> dict[str, tuple[str, str]]:
+    """Object node name -> (parent class, support kind); layout nodes by class and rounded centre."""
+    out = {}
+    for i, n in g.nodes.items():
+        if i == 0:
+            continue
+        key = n.name if n.category != "layout" else f"{n.class_name}@{np.round(n.box.center[:2], 1).tolist()}"
+        p = g.parent(i)
+        out[key] = (g.nodes[p].class_name if p else "scene", g.supports[i].kind)
+    return out
+
+
+# ---------------------------------------------------------------------------------------- layout
+def test_ground_truth_room_without_layout_labels_gets_floor_and_walls_with_the_same_supports():
+    ents = entities_from_ground_truth(build_scene(8, 3, name="no-layout"))
+    labelled = build_contact_graph(ents)
+    assert labelled.stats["geometric_layout"] == {}  # labelled layout: nothing derived
+    layout = [e for e in ents if e.class_name in ("floor", "wall")]
+    assert len(layout) == 5
+    relabelled = [e for e in ents if e.class_name not in ("floor", "wall")] + [unknown([e.mesh() for e in layout])]
+    g = build_contact_graph(relabelled)
+    stats = g.stats["geometric_layout"]
+    assert set(stats) == {"floor", "wall"}
+    floors = [n for n in g.nodes.values() if n.class_name == "floor"]
+    walls = [n for n in g.nodes.values() if n.class_name == "wall"]
+    assert len(floors) == 1 and len(walls) == 4
+    assert floors[0].box.z_max == pytest.approx(0.0, abs=0.01)
+    # every object stands where it stood with the labelled layout; the walls stand on the floor
+    assert _parents(g) == _parents(labelled)
+    assert all(g.parent(w.id) == floors[0].id and g.supports[w.id].kind == "support" for w in walls)
+    # switched off: no layout at all, objects fall back to the scene root
+    off = SceneGraphConfig()
+    off.geometric_layout.enabled = False
+    g_off = build_contact_graph(relabelled, off)
+    assert not [n for n in g_off.nodes.values() if n.category == "layout"]
+
+
+def test_ceiling_found_and_a_cabinet_front_is_no_wall():
+    front = patch([1.2, -0.6, 0.0], [0, 1.2, 0], [0, 0, 1.2])  # 0.8 m in front of the east wall
+    table_top = patch([-1.0, -0.3, 0.75], [1.0, 0, 0], [0, 0.6, 0])  # small: not the floor
+    found = layout_from_geometry(unknown([*room_surface(), front, table_top]), [], GeometricLayoutConfig(),
+                                 SceneGraphConfig().layout)
+    assert set(found) == {"floor", "wall", "ceiling"}
+    assert np.ptp(found["floor"].vertices[:, 2]) < 0.01 and found["floor"].vertices[:, 2].max() < 0.01
+    assert found["ceiling"].vertices[:, 2].min() == pytest.approx(2.5)
+    wall = found["wall"].mesh()
+    on_front = np.isclose(wall.triangles_center[:, 0], 1.2) & (np.abs(wall.face_normals[:, 0]) > 0.9)
+    assert not on_front.any() and len(wall.faces) == 4 * 480  # the four walls; the cabinet front stays unlabelled
+    g = build_contact_graph([unknown([*room_surface(), front, table_top])])
+    assert sum(n.class_name == "wall" for n in g.nodes.values()) == 4
+    assert sum(n.class_name == "ceiling" for n in g.nodes.values()) == 1
+
+
+def test_one_wall_and_no_floor_gives_only_that_wall():
+    found = layout_from_geometry(unknown([patch(*WALLS["north"], [0, 0, 2.5])]), [], GeometricLayoutConfig(),
+                                 SceneGraphConfig().layout)
+    assert set(found) == {"wall"}
+
+
+# ---------------------------------------------------------------------------------------- things
+def chair_with_wall(wall: bool = True) -> trimesh.Trimesh:
+    parts = [box([0, 0.95, 0.42], [0.5, 1.4, 0.47]), box([0, 1.36, 0.47], [0.5, 1.4, 0.9])]
+    parts += [box([x, y, 0], [x + 0.04, y + 0.04, 0.42]) for x in (0, 0.46) for y in (0.95, 1.36)]
+    if wall:  # the detection mask bled onto the wall behind the chair: 3 m x 2.5 m of it
+        parts.append(patch([-1.5, 1.5, 0], [3, 0, 0], [0, 0, 2.5], 30, 25))
+    return trimesh.util.concatenate(parts)
+
+
+def test_a_chair_that_swallowed_a_wall_patch_gives_it_up():
+    chair = Entity.from_mesh(7, "chair_7", "chair", chair_with_wall(), class_id=12)
+    kept, given = give_up_layout_planes(chair, 1.0, GeometricLayoutConfig())
+    assert given is not None and np.allclose(given.vertices[:, 1], 1.5)
+    assert np.ptp(kept.vertices[:, 0]) < 0.6 and kept.vertices[:, 2].max() < 0.95
+    # a chair without the wall keeps everything
+    clean = Entity.from_mesh(7, "chair_7", "chair", chair_with_wall(False), class_id=12)
+    assert give_up_layout_planes(clean, 1.0, GeometricLayoutConfig())[1] is None
+    # in the graph of a labelled room: the chair's box is a chair's
+    floor = Entity.from_mesh(1, "floor", "floor", patch([-2, -1.5, 0], [4, 0, 0], [0, 3, 0], 40, 30),
+                             is_thing=False, category="layout")
+    g = build_contact_graph([floor, chair])
+    assert g.nodes[7].box_unrefined.size.max() < 1.0 and g.parent(7) == 1
+    off = SceneGraphConfig()
+    off.geometric_layout.enabled = False
+    assert build_contact_graph([floor, chair], off).nodes[7].box_unrefined.size.max() > 2.5
+
+
+def test_the_wall_a_chair_gave_up_becomes_a_wall_node_of_an_unlabelled_map():
+    chair = Entity.from_mesh(7, "chair_7", "chair", chair_with_wall(), class_id=12)
+    surface = unknown(room_surface(ceiling=False, walls=("west", "east", "south")))  # the north wall: in the chair
+    g = build_contact_graph([surface, chair])
+    walls = [n for n in g.nodes.values() if n.class_name == "wall"]
+    assert len(walls) == 4
+    north = [n for n in walls if n.box.center[1] > 1.4]
+    assert len(north) == 1 and north[0].box_unrefined.size[0] > 2.9
+    assert g.nodes[7].box_unrefined.size.max() < 1.0
+    assert g.nodes[g.parent(7)].class_name == "floor"
+
+
+def test_a_sofa_keeps_its_own_back_and_seat():
+    sofa = trimesh.util.concatenate([box([0, 0, 0.0], [2.2, 0.9, 0.45]), box([0, 0.7, 0.45], [2.2, 0.9, 0.9])])
+    e = Entity.from_mesh(5, "sofa_5", "sofa", sofa)
+    assert give_up_layout_planes(e, 2.5, GeometricLayoutConfig())[1] is None
+
+
+# ---------------------------------------------------------------------------------------- incremental
+def test_incremental_builder_drops_derived_layout_once_labels_arrive():
+    b = ContactGraphBuilder(SceneGraphConfig())
+    b.update([unknown(room_surface())])
+    g = b.build()
+    derived = g.stats["geometric_layout"]
+    assert set(derived) == {"floor", "wall", "ceiling"}
+    assert b.ids == []  # derived layout has no source entity: a snapshot-mode node never removes it
+    b.remove([derived["floor"]["id"]])
+    assert derived["floor"]["id"] in b.build().nodes
+    floor = Entity.from_mesh(3, "floor", "floor", patch([-2, -1.5, 0], [4, 0, 0], [0, 3, 0], 40, 30),
+                             is_thing=False, category="layout")
+    b.update([floor])
+    g = b.build()
+    assert g.stats["geometric_layout"] == {}
+    assert [n.id for n in g.nodes.values() if n.class_name == "floor"] == [3]
+    b.remove([3])
+    assert set(b.build().stats["geometric_layout"]) == {"floor", "wall", "ceiling"}
+
+
+def test_concat_entities_keeps_face_indices_valid():
+    a = Entity.from_mesh(1, "a", "unknown", box([0, 0, 0], [1, 1, 1]))
+    c = concat_entities(a, [Entity.from_mesh(2, "b", "unknown", box([2, 0, 0], [3, 1, 1]))])
+    assert len(c.faces) == 24 and c.faces.max() == len(c.vertices) - 1 and c.id == 1
