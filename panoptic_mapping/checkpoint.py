@@ -225,7 +225,7 @@ class Checkpointer:
         self.config = config
         self.clock = clock
         self._last_t = clock()
-        self._last_frames: int | None = None
+        self.last_frames: int | None = None
         self.saved = 0
         self.last_cost_s = 0.0
         self.total_cost_s = 0.0
@@ -234,17 +234,17 @@ class Checkpointer:
     def start(self, frames: int) -> None:
         """Count the interval from now and from `frames` (a resumed map's count)."""
         self._last_t = self.clock()
-        self._last_frames = frames
+        self.last_frames = frames
 
     def due(self, frames: int) -> bool:
         c = self.config
         if not c.enabled:
             return False
-        if self._last_frames is None:
-            self._last_frames = frames
-        if frames <= self._last_frames:
+        if self.last_frames is None:
+            self.last_frames = frames
+        if frames <= self.last_frames:
             return False
-        if c.every_n_frames > 0 and frames - self._last_frames >= c.every_n_frames:
+        if c.every_n_frames > 0 and frames - self.last_frames >= c.every_n_frames:
             return True
         return c.every_s > 0 and self.clock() - self._last_t >= c.every_s
 
@@ -258,8 +258,8 @@ class Checkpointer:
         self.saved += 1
         self.last_path = path
         self._last_t = self.clock()
-        self._last_frames = int(snap.meta.get("frames_integrated", 0))
-        log.info("checkpoint %s written (%d frames, %.2f s)", path, self._last_frames, self.last_cost_s)
+        self.last_frames = int(snap.meta.get("frames_integrated", 0))
+        log.info("checkpoint %s written (%d frames, %.2f s)", path, self.last_frames, self.last_cost_s)
         return path
 
 

@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass
 
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from tf2_msgs.msg import TFMessage
@@ -31,6 +32,7 @@ from ros_nodes.conversions import (
 )
 from ros_nodes.parameters import declare_config
 from ros_nodes.qos import SENSOR_RELIABLE, TF_DYNAMIC
+from ros_nodes.runner import install_sigterm_handler
 
 
 @dataclass
@@ -148,6 +150,7 @@ class RGBDPlayer(Node):
 def main(args: list[str] | None = None) -> int:
     ensure_ros_environment()
     rclpy.init(args=args)
+    install_sigterm_handler()
     node = RGBDPlayer()
     try:
         while rclpy.ok() and not node.finished:
@@ -156,7 +159,7 @@ def main(args: list[str] | None = None) -> int:
         end = time.monotonic() + 0.5
         while rclpy.ok() and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.05)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         node.destroy_node()
