@@ -127,6 +127,7 @@ class MapperNode(Node):
         self.lock = threading.Lock()
         self._services_waiting = 0
         self._waiting_lock = threading.Lock()
+        self.last_service_wait_s = 0.0
         self.checkpointer: Checkpointer | None = None
         self._checkpoint_thread: threading.Thread | None = None
         if self.config.checkpoint.enabled:
@@ -189,15 +190,23 @@ class MapperNode(Node):
     # ------------------------------------------------------------------ map lock
     @contextlib.contextmanager
     def _service_turn(self) -> Iterator[None]:
-        """The map's lock, for a service: the integration loop steps aside while one waits."""
+        """The map's lock, for a service: the integration loop steps aside while one waits.
+
+        The time waited is kept in `last_service_wait_s` (and reported by the services' messages)."""
+        t0 = time.perf_counter()
         with self._waiting_lock:
             self._services_waiting += 1
         try:
             with self.lock:
+                self.last_service_wait_s = time.perf_counter() - t0
                 yield
         finally:
             with self._waiting_lock:
                 self._services_waiting -= 1
+
+    def _timing(self, t0: float) -> str:
+        return (f"({1000 * self.last_service_wait_s:.0f} ms waiting for the map, "
+                f"{1000 * (time.perf_counter() - t0):.0f} ms in all)")
 
     # ------------------------------------------------------------------ inputs
     def _on_info(self, msg: CameraInfo) -> None:
@@ -334,32 +343,36 @@ class MapperNode(Node):
             self.get_logger().error(f"frame not integrated: {exc}", throttle_duration_sec=5.0)
 
     # ------------------------------------------------------------------ outputs
-    def _entities_msg(self, include_meshes: bool) -> PanopticEntityArray:
-        ents = self.mapper.entities(with_meshes=True)
+    def _entities_msg(self, ents: list, include_meshes: bool, publishing: bool) -> PanopticEntityArray:
+        """The message of extracted entities; runs outside the map's lock (the mesh conversion is slow).
+
+        Only the publisher (one thread) updates the conversion cache and the published revisions."""
         msg = PanopticEntityArray()
         msg.header.frame_id = self.map_frame
         msg.header.stamp = self.get_clock().now().to_msg()
-        cache = {}
+        old, cache = self._msg_cache, {}
         for e in ents:
             key = (int(e.id), int(e.revision), include_meshes)
-            cache[key] = self._msg_cache.get(key) or entity_to_msg(e, include_meshes)
-        self._msg_cache = cache
+            cache[key] = old.get(key) or entity_to_msg(e, include_meshes)
         msg.entities = list(cache.values())
         ids = {e.id for e in ents}
         msg.removed_ids = sorted(i for i in self._published_revision if i not in ids)
-        self._published_revision = {e.id: e.revision for e in ents}
-        return msg, ents
+        if publishing:
+            self._msg_cache = cache
+            self._published_revision = {e.id: e.revision for e in ents}
+        return msg
 
     def _publish(self) -> None:
         if not self._changed or self._services_waiting:
             return
-        with self.lock:
-            self._changed = False
-            try:
-                msg, ents = self._entities_msg(self.include_meshes)
-            except (RuntimeError, ValueError) as exc:  # never let one bad extraction take the node down
-                self.get_logger().error(f"entity extraction failed: {exc}", throttle_duration_sec=5.0)
-                return
+        try:
+            with self.lock:  # only the extraction needs the map; the conversions run outside
+                self._changed = False
+                ents = self.mapper.entities(with_meshes=True)
+            msg = self._entities_msg(ents, self.include_meshes, publishing=True)
+        except (RuntimeError, ValueError) as exc:  # never let one bad extraction take the node down
+            self.get_logger().error(f"entity extraction failed: {exc}", throttle_duration_sec=5.0)
+            return
         self.pub_entities.publish(msg)
         self.pub_markers.publish(map_markers(ents, self.map_frame, msg.header.stamp))
 
@@ -425,6 +438,7 @@ class MapperNode(Node):
     def _srv_save(self, req: SaveMap.Request, res: SaveMap.Response) -> SaveMap.Response:
         from recon_core.entity import save_entities
 
+        t0 = time.perf_counter()
         try:
             folder = self._confined(req.path)
             with self._service_turn():
@@ -432,7 +446,7 @@ class MapperNode(Node):
                 ents = self.mapper.entities()
             snapshot.write(folder)
             save_entities(ents, folder, self.map_frame)
-            res.success, res.message = True, f"map saved to {folder}"
+            res.success, res.message = True, f"map saved to {folder} {self._timing(t0)}"
         except (OSError, ValueError) as exc:  # PathConfinementError is both
             res.success, res.message = False, f"cannot save to {req.path!r}: {exc}"
         return res
@@ -445,6 +459,8 @@ class MapperNode(Node):
                 self.mapper = mapper
                 self.pending.clear()
                 self._changed = True
+                if self.checkpointer is not None:  # the next checkpoint interval counts from the loaded map
+                    self.checkpointer.start(mapper.frames_integrated)
             res.success, res.message = True, f"map loaded from {folder}"
         except (OSError, ValueError, SceneReconError) as exc:
             res.success, res.message = False, f"cannot load {req.path!r}: {exc} (the current map is kept)"
@@ -456,19 +472,25 @@ class MapperNode(Node):
         return res
 
     def _srv_reset(self, _req: ResetMap.Request, res: ResetMap.Response) -> ResetMap.Response:
+        t0 = time.perf_counter()
+        fresh = PanopticMapper(self.config, class_metas(self.class_table))  # allocated outside the lock
         with self._service_turn():
-            self.mapper = PanopticMapper(self.config, class_metas(self.class_table))
+            self.mapper = fresh
             self.pending.clear()
             self.queue.clear()
             self._changed = True
-        res.success, res.message = True, "map reset"
+            if self.checkpointer is not None:
+                self.checkpointer.start(0)
+        res.success, res.message = True, f"map reset {self._timing(t0)}"
         return res
 
     def _srv_extract(self, req: ExtractEntities.Request, res: ExtractEntities.Response) -> ExtractEntities.Response:
+        t0 = time.perf_counter()
         try:
             with self._service_turn():
-                res.entities, _ = self._entities_msg(req.include_meshes)
-            res.success, res.message = True, f"{len(res.entities.entities)} entities"
+                ents = self.mapper.entities(with_meshes=True)  # boxes come from the meshes
+            res.entities = self._entities_msg(ents, req.include_meshes, publishing=False)
+            res.success, res.message = True, f"{len(res.entities.entities)} entities {self._timing(t0)}"
         except (RuntimeError, ValueError) as exc:
             res.success, res.message = False, f"entity extraction failed: {exc}"
         return res

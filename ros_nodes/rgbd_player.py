@@ -22,7 +22,6 @@ from tf2_msgs.msg import TFMessage
 from panoptic_mapping.dataio import DataInputConfig, DatasetError
 from panoptic_mapping.dataio.registry import open_dataset
 from recon_core.config import Settings, setting
-from recon_core.ros_env import ensure_ros_environment
 from ros_nodes.conversions import (
     depth_to_image,
     intrinsics_to_camera_info,
@@ -32,7 +31,7 @@ from ros_nodes.conversions import (
 )
 from ros_nodes.parameters import declare_config
 from ros_nodes.qos import SENSOR_RELIABLE, TF_DYNAMIC
-from ros_nodes.runner import install_sigterm_handler
+from ros_nodes.runner import init_ros
 
 
 @dataclass
@@ -148,16 +147,14 @@ class RGBDPlayer(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    ensure_ros_environment()
-    rclpy.init(args=args)
-    install_sigterm_handler()
+    stop = init_ros(args)  # SIGINT/SIGTERM set `stop`: the loop ends, the node is destroyed, exit 0
     node = RGBDPlayer()
     try:
-        while rclpy.ok() and not node.finished:
+        while rclpy.ok() and not node.finished and not stop.is_set():
             rclpy.spin_once(node, timeout_sec=0.1)
         # let reliable subscribers drain the last messages before the publishers go away
         end = time.monotonic() + 0.5
-        while rclpy.ok() and time.monotonic() < end:
+        while rclpy.ok() and time.monotonic() < end and not stop.is_set():
             rclpy.spin_once(node, timeout_sec=0.05)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

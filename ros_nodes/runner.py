@@ -1,53 +1,76 @@
-"""One way to run a node: environment, init, spin until Ctrl-C / SIGTERM, clean shutdown."""
+"""One way to run a node: environment, init, spin until Ctrl-C / SIGTERM, clean shutdown (exit 0).
+
+SIGINT and SIGTERM only set a flag (`init_ros` installs the handlers instead of rclpy's own, which
+shut the context down at once): the spin loop sees it between two waits, the executor finishes the
+callbacks still running, the node's `on_shutdown()` runs (the mapper's last checkpoint), and only
+then are the node and the context destroyed. Shutting rclpy down from inside the signal handler
+made a callback that was publishing at that moment die with InvalidHandle (a traceback, exit 1).
+"""
 
 from __future__ import annotations
 
 import signal
+import threading
 from collections.abc import Callable
 
 import rclpy
-from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from recon_core.ros_env import ensure_ros_environment
 
-
-def install_sigterm_handler() -> None:
-    """SIGTERM shuts rclpy down like Ctrl-C does: spinning ends and the node's clean-up runs (exit 0)."""
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
+#: How often (s) the spin loop looks at the stop flag.
+STOP_POLL_S = 0.1
 
 
-def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 1) -> int:
-    """Create the node with `factory` and spin it (on `threads` executor threads); returns the exit code.
-
-    On Ctrl-C or SIGTERM the executor stops, then the node's `on_shutdown()` (if it has one: the
-    mapper's last checkpoint) runs before the node is destroyed.
-    """
+def init_ros(args: list[str] | None = None) -> threading.Event:
+    """rclpy.init without rclpy's signal handlers; returns the event SIGINT/SIGTERM set."""
     ensure_ros_environment()
-    rclpy.init(args=args)
-    install_sigterm_handler()
-    node = factory()
-    executor: Executor | None = None
-    try:
-        if threads > 1:
-            from rclpy.executors import MultiThreadedExecutor
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
 
-            executor = MultiThreadedExecutor(num_threads=threads)
-            executor.add_node(node)
-            executor.spin()
-        else:
-            rclpy.spin(node)
+    def _on_signal(_signum: int, _frame: object) -> None:
+        stop.set()
+
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, _on_signal)
+    return stop
+
+
+def spin_until_stopped(node: Node, stop: threading.Event, threads: int = 1) -> None:
+    """Spin `node` (on `threads` executor threads) until `stop` is set or rclpy shuts down; the callbacks
+    still running when it stops are finished before this returns."""
+    executor: Executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=STOP_POLL_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if executor is not None:
-            executor.shutdown(timeout_sec=30)  # callbacks still running finish first
-        hook = getattr(node, "on_shutdown", None)
-        if hook is not None:
-            try:
-                hook()
-            except Exception as exc:  # a failing clean-up is reported, the exit stays orderly
-                node.get_logger().error(f"shutdown: {type(exc).__name__}: {exc}")
-        node.destroy_node()
-        rclpy.try_shutdown()
+        executor.shutdown(timeout_sec=30)
+
+
+def shutdown_node(node: Node) -> None:
+    """The node's `on_shutdown()` (if any; its failure is logged), then destroy it and the context."""
+    hook = getattr(node, "on_shutdown", None)
+    if hook is not None:
+        try:
+            hook()
+        except Exception as exc:  # a failing clean-up is reported, the exit stays orderly
+            node.get_logger().error(f"shutdown: {type(exc).__name__}: {exc}")
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 1) -> int:
+    """Create the node with `factory` and spin it (on `threads` executor threads); returns the exit code."""
+    stop = init_ros(args)
+    node = factory()
+    try:
+        spin_until_stopped(node, stop, threads)
+    finally:
+        shutdown_node(node)
     return 0
