@@ -161,7 +161,7 @@ class MapperNode(Node):
         self.queue: collections.deque[tuple[Image, Image, float]] = collections.deque()
         self.pending: list[_Pending] = []
         self.counters = collections.Counter()
-        self._changed = False
+        self._changed = self.mapper.frames_integrated > 0  # a resumed map is published at once
         self._published_revision: dict[int, int] = {}
         # entity messages by (id, revision, with mesh): unchanged entities are not converted again
         self._msg_cache: dict[tuple[int, int, bool], object] = {}
@@ -184,7 +184,8 @@ class MapperNode(Node):
         for why in ckpt.skipped:
             self.get_logger().warning(f"resume: {why}; using the older checkpoint {ckpt.path}")
         self.mapper = ckpt.mapper
-        self._changed = True
+        assert self.checkpointer is not None
+        self.checkpointer.start(self.mapper.frames_integrated)
         self.get_logger().info(f"resumed from checkpoint {ckpt.path} ({self.mapper.frames_integrated} frames)")
 
     # ------------------------------------------------------------------ map lock
