@@ -17,6 +17,7 @@ import io
 import json
 import logging
 import time
+import zipfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -527,6 +528,21 @@ class PanopticMapper:
         return mapper
 
 
+#: zlib level of map.npz: 1 writes 3x faster than numpy's default (6) for 12 % more bytes (3719-block
+#: map: 0.18 s / 5.2 MB against 0.53 s / 4.7 MB), which matters for periodic checkpoints.
+NPZ_COMPRESSLEVEL = 1
+
+
+def npz_bytes(arrays: dict[str, np.ndarray], compresslevel: int = NPZ_COMPRESSLEVEL) -> bytes:
+    """An .npz file (as `np.load` reads it, no pickle) of `arrays`, deflated at `compresslevel`."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=compresslevel) as zf:
+        for name, value in arrays.items():
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
+    return buf.getvalue()
+
+
 @dataclass
 class MapSnapshot:
     """The saved form of a map: named numpy arrays (map.npz) and JSON metadata (map.json)."""
@@ -538,9 +554,7 @@ class MapSnapshot:
         """Write map.npz then map.json (each atomically; map.json names map.npz's checksum)."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **self.arrays)  # type: ignore[arg-type]  # numpy's stub types **kwds as bool
-        data = buf.getvalue()
+        data = npz_bytes(self.arrays)
         meta = {**self.meta, "npz_sha256": hashlib.sha256(data).hexdigest(), "npz_bytes": len(data)}
         write_bytes_atomic(folder / "map.npz", data)
         write_text_atomic(folder / "map.json", json.dumps(meta, indent=1))
