@@ -143,6 +143,20 @@ class ExtractionConfig(Settings):
 
 
 @dataclass
+class CheckpointConfig(Settings):
+    """Periodic checkpoints of the map (`scene-recon map`: <out>/checkpoints; the node: <data_root>/checkpoints).
+
+    A checkpoint is written when either trigger fires (and on SIGINT/SIGTERM); each is a complete
+    generation folder renamed into place, so a crash mid-write keeps the previous one.
+    """
+
+    enabled: bool = setting(True, doc="write periodic checkpoints and one on SIGINT/SIGTERM")
+    every_n_frames: int = setting(100, min=0, doc="checkpoint after this many integrated frames (0: never by count)")
+    every_s: float = setting(60.0, min=0.0, doc="checkpoint after this many seconds of mapping (0: never by time)")
+    keep: int = setting(2, min=1, doc="checkpoint generations kept: the newest and older ones to fall back on")
+
+
+@dataclass
 class MapperConfig(Settings):
     #: "full" = the paper's method; "baseline" = Voxblox++-style fusion (greedy labels, separate
     #: semantic and instance tracking, no split, no clustering) for the ablation.
@@ -157,3 +171,4 @@ class MapperConfig(Settings):
     tsdf: TSDFConfig = field(default_factory=TSDFConfig)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     extraction: ExtractionConfig = field(default_factory=ExtractionConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)

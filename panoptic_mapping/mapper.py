@@ -12,9 +12,12 @@ are associated and extracted ignoring the class; no instance merging).
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
 import logging
 import time
+import zipfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -28,7 +31,9 @@ from panoptic_mapping.image_ops import downsample_depth, downsample_labels
 from panoptic_mapping.panoptic_counts import PanopticCounts
 from panoptic_mapping.tsdf_map import LabeledTSDF
 from recon_core.entity import Entity
+from recon_core.errors import CheckpointError
 from recon_core.frame import RGBDFrame
+from recon_core.io import write_bytes_atomic, write_text_atomic
 
 log = logging.getLogger(__name__)
 MAP_FORMAT_VERSION = 1
@@ -492,47 +497,117 @@ class PanopticMapper:
         return v, f, lut[np.clip(vlab, 0, len(lut) - 1)]
 
     # ------------------------------------------------------------------ persistence (no pickle)
-    def save(self, folder: str | Path) -> Path:
-        """Write `map.npz` (voxels + counts, numpy arrays only) and `map.json` (config, metadata)."""
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
+    def snapshot(self) -> MapSnapshot:
+        """A copy of the map's state (arrays + metadata), cheap next to writing it: take it under the
+        lock that guards the mapper, write it (`MapSnapshot.write`, the costly part) outside."""
         arrays = {f"tsdf_{k}": v for k, v in self.tsdf.state().items()}
         arrays.update({f"counts_{k}": v for k, v in self.counts.to_arrays().items()})
         mv = np.array([(a, b, n) for (a, b), n in self.merge_votes.items()], np.int64).reshape(-1, 3)
         arrays["merge_votes"] = mv
-        np.savez_compressed(folder / "map.npz", **arrays)  # type: ignore[arg-type]  # numpy's stub types **kwds as bool
+        if self._last_key_pose is not None:
+            arrays["last_key_pose"] = np.asarray(self._last_key_pose, np.float64).copy()
         meta = {"format_version": MAP_FORMAT_VERSION, "config": asdict(self.config),
                 "frames_integrated": self.frames_integrated, "keyframes": self.keyframes,
+                "last_key_time_ns": self._last_key_time,
                 "classes": {str(k): asdict(v) for k, v in self.classes.items()},
                 # input map frame = these coordinates + origin_offset_m (non-zero for recentred maps)
                 "origin_offset_m": [float(v) for v in self.origin_offset],
                 # map point = alignment @ input point - origin_offset_m (alignment: input world -> z up)
-                "gravity_alignment": self.alignment.tolist(), "gravity": self.gravity}
-        (folder / "map.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
-        return folder / "map.npz"
+                "gravity_alignment": self.alignment.tolist(), "gravity": dict(self.gravity)}
+        return MapSnapshot(arrays, meta)
+
+    def save(self, folder: str | Path) -> Path:
+        """Write `map.npz` (voxels + counts, numpy arrays only) and `map.json` (config, metadata).
+
+        Each file is replaced atomically, and map.json carries the checksum of the map.npz it goes
+        with: an interrupted save leaves either the old pair, or a pair `load` refuses as mismatched.
+        (Checkpoints, `panoptic_mapping.checkpoint`, write whole generations and never see that case.)
+        """
+        return self.snapshot().write(folder)
 
     @classmethod
     def load(cls, folder: str | Path) -> PanopticMapper:
+        """The map saved in `folder`. Raises FileNotFoundError when there is none, CheckpointError
+        (naming the file) when map.json or map.npz is damaged or the two do not belong together."""
         from recon_core.config import from_dict
 
         folder = Path(folder)
         meta_path, npz_path = folder / "map.json", folder / "map.npz"
         if not meta_path.is_file() or not npz_path.is_file():
             raise FileNotFoundError(f"{folder} holds no saved map (map.json + map.npz)")
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise CheckpointError(f"{meta_path}: damaged, not valid JSON ({exc})") from None
+        if not isinstance(meta, dict):
+            raise CheckpointError(f"{meta_path}: damaged, not a JSON object")
         if meta.get("format_version") != MAP_FORMAT_VERSION:
-            raise ValueError(f"{meta_path}: unsupported map format {meta.get('format_version')!r}")
-        config = from_dict(MapperConfig, meta["config"])
-        classes = {int(k): ClassMeta(**v) for k, v in meta.get("classes", {}).items()}
+            raise CheckpointError(f"{meta_path}: unsupported map format {meta.get('format_version')!r}")
+        try:
+            config = from_dict(MapperConfig, meta["config"])
+            classes = {int(k): ClassMeta(**v) for k, v in meta.get("classes", {}).items()}
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CheckpointError(f"{meta_path}: damaged, bad config or classes ({exc})") from None
+        data = npz_path.read_bytes()
+        expected = meta.get("npz_sha256")
+        if expected is not None and hashlib.sha256(data).hexdigest() != expected:
+            raise CheckpointError(
+                f"{npz_path} does not belong to {meta_path.name} (checksum mismatch, {len(data)} bytes, "
+                f"expected {meta.get('npz_bytes', '?')}): truncated, or the pair was not written together")
         mapper = cls(config, classes)
-        with np.load(npz_path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-        mapper.tsdf.load_state({k[5:]: v for k, v in arrays.items() if k.startswith("tsdf_")})
-        mapper.counts = PanopticCounts.from_arrays({k[7:]: v for k, v in arrays.items() if k.startswith("counts_")})
-        mapper.merge_votes = {(int(a), int(b)): int(n) for a, b, n in arrays["merge_votes"]}
-        mapper.frames_integrated = int(meta.get("frames_integrated", 0))
-        mapper.keyframes = int(meta.get("keyframes", 0))
-        mapper.origin_offset = np.asarray(meta.get("origin_offset_m", [0.0, 0.0, 0.0]), dtype=np.float64)
-        mapper.alignment = np.asarray(meta.get("gravity_alignment", np.eye(4).tolist()), dtype=np.float64).reshape(4, 4)
-        mapper.gravity = dict(meta.get("gravity", {}))
+        try:
+            with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+                arrays = {k: npz[k] for k in npz.files}
+            mapper.tsdf.load_state({k[5:]: v for k, v in arrays.items() if k.startswith("tsdf_")})
+            mapper.counts = PanopticCounts.from_arrays(
+                {k[7:]: v for k, v in arrays.items() if k.startswith("counts_")})
+            mapper.merge_votes = {(int(a), int(b)): int(n) for a, b, n in arrays["merge_votes"]}
+            if "last_key_pose" in arrays:
+                mapper._last_key_pose = np.asarray(arrays["last_key_pose"], np.float64).reshape(4, 4)
+            mapper.frames_integrated = int(meta.get("frames_integrated", 0))
+            mapper.keyframes = int(meta.get("keyframes", 0))
+            key_time = meta.get("last_key_time_ns")
+            mapper._last_key_time = int(key_time) if key_time is not None else None
+            mapper.origin_offset = np.asarray(meta.get("origin_offset_m", [0.0, 0.0, 0.0]),
+                                              dtype=np.float64).reshape(3)
+            mapper.alignment = np.asarray(meta.get("gravity_alignment", np.eye(4).tolist()),
+                                          dtype=np.float64).reshape(4, 4)
+            mapper.gravity = dict(meta.get("gravity", {}))
+        except MemoryError:
+            raise
+        except Exception as exc:  # zip, zlib, npy-header, shape and key errors: all mean a damaged file
+            raise CheckpointError(f"{npz_path}: damaged ({type(exc).__name__}: {exc})") from None
         return mapper
+
+
+#: zlib level of map.npz: 1 writes 3x faster than numpy's default (6) for 12 % more bytes (3719-block
+#: map: 0.18 s / 5.2 MB against 0.53 s / 4.7 MB), which matters for periodic checkpoints.
+NPZ_COMPRESSLEVEL = 1
+
+
+def npz_bytes(arrays: dict[str, np.ndarray], compresslevel: int = NPZ_COMPRESSLEVEL) -> bytes:
+    """An .npz file (as `np.load` reads it, no pickle) of `arrays`, deflated at `compresslevel`."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=compresslevel) as zf:
+        for name, value in arrays.items():
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(value), allow_pickle=False)
+    return buf.getvalue()
+
+
+@dataclass
+class MapSnapshot:
+    """The saved form of a map: named numpy arrays (map.npz) and JSON metadata (map.json)."""
+
+    arrays: dict[str, np.ndarray]
+    meta: dict
+
+    def write(self, folder: str | Path) -> Path:
+        """Write map.npz then map.json (each atomically; map.json names map.npz's checksum)."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        data = npz_bytes(self.arrays)
+        meta = {**self.meta, "npz_sha256": hashlib.sha256(data).hexdigest(), "npz_bytes": len(data)}
+        write_bytes_atomic(folder / "map.npz", data)
+        write_text_atomic(folder / "map.json", json.dumps(meta, indent=1))
+        return folder / "map.npz"

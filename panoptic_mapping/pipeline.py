@@ -11,9 +11,10 @@ import json
 import logging
 import re
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,6 +34,9 @@ from panoptic_mapping.gravity import (
     up_of_alignment,
 )
 from panoptic_mapping.mapper import ClassMeta, PanopticMapper
+
+if TYPE_CHECKING:
+    from panoptic_mapping.checkpoint import Checkpoint, Checkpointer
 from recon_core.classes import ClassTable, load_class_table
 from recon_core.entity import Entity, save_entities
 from recon_core.errors import DatasetError, InputError
@@ -86,6 +90,16 @@ class MappingRun:
     origin_offset_m: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     #: The recording ended early (truncated bag); frames before the cut were mapped.
     truncated: bool = False
+    #: Stopped by a request (SIGINT/SIGTERM) before the end; a checkpoint holds the progress.
+    interrupted: bool = False
+    #: Frames taken from the recording so far (posed or not), also those a resumed run skipped.
+    frames_read: int = 0
+    #: Resumed from a checkpoint: its generation (0: a fresh run), and the frames it had read.
+    resumed_generation: int = 0
+    resumed_frames_read: int = 0
+    #: Checkpoints written by this run and the time they took.
+    checkpoints: int = 0
+    checkpoint_s: float = 0.0
     poses: list[np.ndarray] = field(default_factory=list)
 
     @property
@@ -96,9 +110,28 @@ class MappingRun:
         d = {k: v for k, v in asdict(self).items() if k != "poses"}
         d["mapper_fps"] = round(self.mapper_fps, 2)
         d["stage_ms"] = {k: round(v / max(self.frames, 1), 2) for k, v in self.stage_ms.items()}
-        for k in ("wall_s", "mapper_s", "segmentation_s", "read_s"):
+        for k in ("wall_s", "mapper_s", "segmentation_s", "read_s", "checkpoint_s"):
             d[k] = round(d[k], 3)
         return d
+
+    #: Fields a checkpoint carries over to the resumed run (sums over the whole run).
+    _RESUMED = ("frames", "segmentation_calls", "failed_frames", "failures", "stage_ms", "mapper_s",
+                "segmentation_s", "read_s")
+
+    def progress(self, source: str | Path, last_timestamp_ns: int | None) -> dict[str, Any]:
+        """What a checkpoint records of this run (see `restore`)."""
+        return {"source": str(Path(source).resolve()), "frames_read": self.frames_read,
+                "last_timestamp_ns": last_timestamp_ns,
+                "run": {k: getattr(self, k) for k in self._RESUMED}}
+
+    def restore(self, progress: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+        """Continue the counts of the run a checkpoint was taken of."""
+        for k, v in (progress.get("run") or {}).items():
+            if k in self._RESUMED:
+                setattr(self, k, type(getattr(self, k))(v))
+        self.frames_read = self.resumed_frames_read = int(progress.get("frames_read", 0))
+        poses = arrays.get("poses")
+        self.poses = [p for p in poses] if poses is not None and poses.ndim == 3 else []
 
 
 def estimate_gravity(source: str | Path, data_config: DataInputConfig | None = None,
@@ -196,6 +229,9 @@ def map_recording(
     recentre_beyond_m: float = RECENTRE_BEYOND_M,
     class_table: ClassTable | None = None,
     gravity: GravityConfig | None = None,
+    checkpointer: Checkpointer | None = None,
+    resume: Checkpoint | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> tuple[PanopticMapper, MappingRun]:
     """Integrate every posed frame of `source`; segment keyframes only (when gating is enabled).
 
@@ -208,30 +244,67 @@ def map_recording(
     no frame could be mapped. class_table: the table the segmenter's class ids come from (default
     config/classes.yaml). gravity (default ``data_config.gravity``): how the input's up is found; a
     fresh map is gravity aligned (``resolve_gravity``), a resumed one keeps its alignment.
+
+    Fault tolerance: `checkpointer` writes a checkpoint whenever one is due (and when the run is
+    stopped); `resume` (a checkpoint of this same recording) continues that run: its map, its
+    counts, and the recording from the first frame it had not read. `stop()` is asked after every
+    frame; when it says true the run checkpoints and returns early with `run.interrupted` set.
     """
     from tqdm import tqdm
 
-    mapper = mapper or PanopticMapper(mapper_config, class_metas(class_table))
     if segmenter is not None and getattr(segmenter, "name", None) == "none":
         segmenter = None  # returns no masks, ever: no label can be fused
     geometry_only = segmenter is None
     run = MappingRun()
+    skip = 0
+    if resume is not None:
+        mapper = resume.mapper
+        run.restore(resume.progress, resume.arrays)
+        run.resumed_generation = resume.generation
+        skip = run.frames_read
+    mapper = mapper or PanopticMapper(mapper_config, class_metas(class_table))
+    if checkpointer is not None:
+        checkpointer.start(mapper.frames_integrated)
     t_start = time.perf_counter()
     data_config = data_config or DataInputConfig()
     if not mapper.frames_integrated and not mapper.gravity:
         transform, info = resolve_gravity(source, data_config, gravity or data_config.gravity)
         mapper.set_alignment(transform, info)
         log.info("%s", info["note"])
+    last_stamp: int | None = (resume.progress.get("last_timestamp_ns") if resume is not None else None)
+
+    def checkpoint() -> None:
+        if checkpointer is None or not checkpointer.config.enabled:
+            return
+        arrays = {"poses": np.asarray(run.poses, np.float64).reshape(-1, 4, 4)}
+        checkpointer.save(mapper, run.progress(source, last_stamp), arrays)
+        run.checkpoints += 1
+        run.checkpoint_s += checkpointer.last_cost_s
+
     with open_dataset(source, data_config) as loader:
         total = len(loader) if hasattr(loader, "__len__") else None
         frames = iter(loader)
         bar = tqdm(total=total, desc="mapping", unit="frame", disable=not progress)
+        read = 0
         while True:
+            if stop is not None and stop():
+                run.interrupted = True
+                break
             t0 = time.perf_counter()
             try:
                 frame = next(frames)
             except StopIteration:
                 break
+            read += 1
+            if read <= skip:  # consumed by the run this one resumes
+                bar.update(1)
+                if read == skip and last_stamp is not None and frame.timestamp_ns != last_stamp:
+                    log.warning("frame %d of %s is not the one the checkpoint stopped after (t=%.3f s, not "
+                                "%.3f s): is this the same recording?", read, source, frame.timestamp_ns * 1e-9,
+                                last_stamp * 1e-9)
+                continue
+            run.frames_read = read
+            last_stamp = frame.timestamp_ns
             run.read_s += time.perf_counter() - t0
             if frame.pose is None:  # require_pose=False loaders: nothing to integrate
                 continue
@@ -258,12 +331,19 @@ def map_recording(
                 run.stage_ms[k] = run.stage_ms.get(k, 0.0) + v
             run.frames += 1
             run.poses.append(mapper.local_pose(frame.pose))
+            log.debug("frame %d of the recording integrated", read)
+            if checkpointer is not None and checkpointer.due(mapper.frames_integrated):
+                checkpoint()
         bar.close()
+        if run.interrupted:
+            checkpoint()
+        elif read < skip:
+            log.warning("%s has %d frames, the checkpoint had read %d: a different recording?", source, read, skip)
         run.skipped = {k: v for k, v in loader.skips.as_dict().items() if v}
         if run.failed_frames:
             run.skipped["mapper_failed"] = run.failed_frames
         run.truncated = bool(getattr(loader, "truncated", False))
-        if not run.frames:
+        if not run.frames and not run.interrupted:
             if run.failed_frames:
                 first = max(run.failures.items(), key=lambda kv: kv[1])[0]
                 raise MappingFailed(f"{source}: all {run.failed_frames} frames failed in the mapper "

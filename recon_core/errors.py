@@ -36,6 +36,14 @@ class StorageError(SceneReconError, OSError):
     """State on disk cannot be read or written (a damaged checkpoint, a path outside the root)."""
 
 
+class PathConfinementError(StorageError, ValueError):
+    """A path a request or message names is empty, malformed or outside the configured data root."""
+
+
+class CheckpointError(StorageError, ValueError):
+    """A saved map or checkpoint is damaged or incomplete (truncated file, bad JSON, mismatched pair)."""
+
+
 class DatasetError(InputError):
     """A recording or frame folder is unusable or a frame in it is malformed."""
 
@@ -69,12 +77,14 @@ class CadImportError(ModelError):
 
 __all__ = [
     "CadImportError",
+    "CheckpointError",
     "ConfigError",
     "DatasetError",
     "EntityError",
     "GraphError",
     "InputError",
     "ModelError",
+    "PathConfinementError",
     "SceneReconError",
     "SegmentationError",
     "StorageError",

@@ -56,7 +56,7 @@ from recon_core.io import write_text_atomic
 from recon_core.kinematic_tree import KinematicTree
 from ros_nodes.contact_graph_node import graph_from_msg
 from ros_nodes.conversions import make_transform_stamped, matrix_to_transform, ns_to_stamp, transform_to_matrix
-from ros_nodes.entity_conversions import msg_to_entity
+from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, msg_to_entity
 from ros_nodes.parameters import declare_config
 from ros_nodes.qos import ENTITIES, LATCHED, TF_DYNAMIC, TF_STATIC
 from ros_nodes.runner import run_node
@@ -79,6 +79,8 @@ class CadReplacerNodeConfig(Settings):
     output_dir: str = setting("scene_recon_data/scene", doc="where the scene's URDF and meshes are written")
     tf_period_s: float = setting(0.1, min=0.01, doc="period of /tf and joint_states (s)")
     min_period_s: float = setting(0.5, min=0.0, doc="replace at most this often (s)")
+    mesh_root: str = setting(DEFAULT_MAP_ROOT, doc="entity meshes given by mesh_uri are read only under this folder "
+                             "(the mapper's data_root); empty: inline meshes only")
 
 
 class CadReplacerNode(Node):
@@ -89,6 +91,7 @@ class CadReplacerNode(Node):
         library = CadLibrary(root=self.settings.cad_dir or None, seeds_per_class=self.settings.seeds_per_class)
         self.replacer = CadReplacer(library, replace_cfg, physical_check=PhysicalCheck(method=replace_cfg.method))
         self.output_dir = Path(self.settings.output_dir).resolve()
+        self.mesh_root = Path(self.settings.mesh_root).expanduser().resolve() if self.settings.mesh_root else None
         self.lock = threading.RLock()  # _install publishes the dynamic state under the same lock
         self.scene: ReplacedScene | None = None
         self.tree: KinematicTree | None = None
@@ -125,7 +128,7 @@ class CadReplacerNode(Node):
             if old is not None and old.revision == int(e.revision):
                 continue
             try:
-                fresh[int(e.id)] = msg_to_entity(e)
+                fresh[int(e.id)] = msg_to_entity(e, self.mesh_root)
             except EntityError as exc:
                 self.counters["bad_entities"] += 1
                 self.get_logger().warning(f"entity {e.id} skipped: {exc}", throttle_duration_sec=5.0)

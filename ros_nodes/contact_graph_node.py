@@ -9,7 +9,10 @@ boxes as LINE_LIST, supporting planes as thin CUBEs, support arrows parent -> ch
 The frame id is the entity array's. Parameters: ``config_file`` (the builder YAML, empty:
 config/scene_graph.yaml), every key of that file under its dotted name (``support.a_th``,
 ``proximal.broadphase``, ``support_joints`` for the joint table, ...; see ``ros_nodes.parameters``),
-and the node's own settings, ``ContactGraphNodeConfig`` (topics, ``min_period_s``, ``snapshot``).
+and the node's own settings, ``ContactGraphNodeConfig`` (topics, ``min_period_s``, ``snapshot``,
+``mesh_root``: meshes given by ``mesh_uri`` are read only under it, and an entity whose file is
+refused or is not a mesh is skipped with a warning, never a crash). The entity subscription is
+transient-local: a restarted node gets the mapper's current entities at once.
 
 The message conversions live here too (the only ROS-facing code of the contact graph).
 """
@@ -19,6 +22,7 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from geometry_msgs.msg import Point, Quaternion, Vector3
@@ -37,7 +41,7 @@ from recon_core.contact_graph import SCENE, ContactGraph, GraphNode, SupportEdge
 from recon_core.entity import EntityError
 from recon_core.geometry.box import GravityBox
 from recon_core.geometry.plane import Plane, SurfacePlane
-from ros_nodes.entity_conversions import msg_to_entity, oriented_box_msg
+from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, msg_to_entity, oriented_box_msg
 from ros_nodes.parameters import declare_config, declare_config_file
 from ros_nodes.qos import ENTITIES as ENTITIES_QOS
 from ros_nodes.qos import LATCHED
@@ -199,6 +203,8 @@ class ContactGraphNodeConfig(Settings):
     markers_topic: str = setting("contact_graph_markers", doc="MarkerArray output (latched)")
     min_period_s: float = setting(0.0, min=0.0, doc="rebuild the graph at most this often (s)")
     snapshot: bool = setting(False, doc="an entity missing from a message is dropped too, not only removed_ids")
+    mesh_root: str = setting(DEFAULT_MAP_ROOT, doc="entity meshes given by mesh_uri are read only under this folder "
+                             "(the mapper's data_root); empty: inline meshes only")
 
 
 class ContactGraphNode(Node):
@@ -209,6 +215,7 @@ class ContactGraphNode(Node):
         joints = load_support_joints(cfg.support_joints or None)
         self.min_period_s = settings.min_period_s
         self.snapshot = settings.snapshot
+        self.mesh_root = Path(settings.mesh_root).expanduser().resolve() if settings.mesh_root else None
         self.builder = ContactGraphBuilder(cfg, joints)
         self.pub_graph = self.create_publisher(ContactGraphMsg, settings.graph_topic, LATCHED)
         self.pub_markers = self.create_publisher(MarkerArray, settings.markers_topic, LATCHED)
@@ -231,7 +238,7 @@ class ContactGraphNode(Node):
             if known and self.builder.features(int(e.id)).entity.revision == int(e.revision):
                 continue  # unchanged: skip the (costly) mesh conversion too
             try:
-                fresh.append(msg_to_entity(e))
+                fresh.append(msg_to_entity(e, self.mesh_root))
             except EntityError as exc:
                 self.counters["bad_entities"] += 1
                 self.get_logger().warning(str(exc), throttle_duration_sec=5.0)

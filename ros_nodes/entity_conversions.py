@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import colorsys
 from pathlib import Path
-from urllib.parse import unquote, urlparse
 
 import numpy as np
 from geometry_msgs.msg import Point, Pose, Quaternion, Vector3
@@ -14,8 +13,9 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from recon_core.entity import Entity
-from recon_core.errors import EntityError
+from recon_core.errors import EntityError, PathConfinementError
 from recon_core.geometry.box_fit import fit_gravity_box
+from recon_core.paths import confined_uri
 
 CATEGORY = {"layout": PanopticEntity.CATEGORY_LAYOUT, "rigid": PanopticEntity.CATEGORY_RIGID,
             "articulated": PanopticEntity.CATEGORY_ARTICULATED}
@@ -57,33 +57,65 @@ def entity_to_msg(e: Entity, include_mesh: bool = True, mesh_uri: str = "") -> P
     return msg
 
 
-def mesh_from_msg(msg: PanopticEntity) -> tuple[np.ndarray, np.ndarray]:
+#: The mapper node's default output root (`data_root`); consumers read meshes by URI only under their
+#: `mesh_root` parameter, which defaults to it.
+DEFAULT_MAP_ROOT = "scene_recon_data/map"
+#: Largest mesh file read by `mesh_uri` (bytes): a message must not make a node read a huge file.
+MAX_MESH_FILE_BYTES = 512 * 2**20
+#: Mesh formats read by `mesh_uri` (by suffix); anything else is refused before it is opened.
+MESH_SUFFIXES = (".ply", ".stl", ".obj", ".off", ".glb", ".gltf")
+
+
+def mesh_from_msg(msg: PanopticEntity, mesh_root: str | Path | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(vertices, faces) of an entity: the inline mesh, else the file behind `mesh_uri` (file:// or a path).
 
-    Raises ValueError when the reference cannot be read.
+    A `mesh_uri` is read only when it names a mesh file under `mesh_root` (the mapper's output root;
+    None: by-reference meshes are refused), see `recon_core.paths.confined_uri`. Raises ValueError
+    when the reference is refused or is not a readable mesh (whatever the file holds).
     """
     v = np.array([[p.x, p.y, p.z] for p in msg.mesh.vertices], np.float64).reshape(-1, 3)
     f = np.array([t.vertex_indices for t in msg.mesh.triangles], np.int64).reshape(-1, 3)
     if len(v) == 0 and msg.mesh_uri:
-        import trimesh
-
-        uri = urlparse(msg.mesh_uri)
-        path = Path(unquote(uri.path)) if uri.scheme in ("file", "") else None
-        if path is None or not path.is_file():
-            raise ValueError(f"entity {msg.id}: cannot read mesh_uri {msg.mesh_uri!r}")
-        geom = trimesh.load(path, process=False)
-        v = np.asarray(geom.vertices, np.float64)
-        f = np.asarray(getattr(geom, "faces", np.zeros((0, 3))), np.int64).reshape(-1, 3)
+        try:
+            path = confined_uri(mesh_root, msg.mesh_uri)
+        except PathConfinementError as exc:
+            raise ValueError(f"entity {msg.id}: mesh_uri {exc}") from None
+        if path.suffix.lower() not in MESH_SUFFIXES:
+            raise ValueError(f"entity {msg.id}: mesh_uri {msg.mesh_uri!r} is not a mesh file "
+                             f"({', '.join(MESH_SUFFIXES)})")
+        if not path.is_file():
+            raise ValueError(f"entity {msg.id}: cannot read mesh_uri {msg.mesh_uri!r}: no such file")
+        if path.stat().st_size > MAX_MESH_FILE_BYTES:
+            raise ValueError(f"entity {msg.id}: mesh_uri {msg.mesh_uri!r} is larger than {MAX_MESH_FILE_BYTES} bytes")
+        v, f = _read_mesh(path, msg)
     return v, f
 
 
-def msg_to_entity(msg: PanopticEntity) -> Entity:
-    """A PanopticEntity (inline mesh, or a ``mesh_uri``) as the core entity; a bad mesh is an EntityError.
+def _read_mesh(path: Path, msg: PanopticEntity) -> tuple[np.ndarray, np.ndarray]:
+    import trimesh
+
+    try:
+        geom = trimesh.load(path, force="mesh", process=False)
+        v = np.asarray(geom.vertices, np.float64).reshape(-1, 3)
+        f = np.asarray(getattr(geom, "faces", np.zeros((0, 3))), np.int64).reshape(-1, 3)
+    except MemoryError:
+        raise
+    except Exception as exc:  # a text file, a truncated PLY, an image: whatever trimesh raises, it is no mesh
+        raise ValueError(f"entity {msg.id}: mesh_uri {msg.mesh_uri!r} is not a readable mesh "
+                         f"({type(exc).__name__}: {exc})") from None
+    if len(v) == 0:
+        raise ValueError(f"entity {msg.id}: mesh_uri {msg.mesh_uri!r} holds no vertices")
+    return v, f
+
+
+def msg_to_entity(msg: PanopticEntity, mesh_root: str | Path | None = None) -> Entity:
+    """A PanopticEntity (inline mesh, or a ``mesh_uri`` under `mesh_root`) as the core entity; a bad or
+    refused mesh is an EntityError.
 
     An unknown category is left empty so the contact-graph builder takes it from the class table.
     """
     try:
-        v, f = mesh_from_msg(msg)
+        v, f = mesh_from_msg(msg, mesh_root)
     except ValueError as exc:
         raise EntityError(str(exc)) from exc
     return Entity(int(msg.id), msg.class_name or "unknown", v, f, class_id=int(msg.class_id),

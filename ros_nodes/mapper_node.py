@@ -4,8 +4,26 @@ Inputs: color + depth images and camera info (approximately synchronised here), 
 TF (`map_frame` <- image frame). Keyframes are sent to the segmentation service asynchronously:
 a slow or dead service never blocks integration — other frames keep integrating geometry, and a
 keyframe whose answer does not come within `segmentation_timeout_s` integrates without labels.
-Outputs: `panoptic_entities` (PanopticEntityArray) and `panoptic_map_markers` (MarkerArray) at
-`publish_period_s` when the map changed; services save_map / load_map / reset_map / extract_entities.
+Outputs: `panoptic_entities` (PanopticEntityArray, transient-local: a consumer started or restarted
+later gets the current entities at once) and `panoptic_map_markers` (MarkerArray) at
+`publish_period_s` when the map changed; `mapper_status` (std_msgs/String, JSON, transient-local,
+every `status_period_s`): frames integrated, frames dropped (backlog) and every other counter,
+queue length, checkpoints. Services save_map / load_map / reset_map / extract_entities.
+
+Under load: the services run on a callback group of their own and take the map's lock between two
+frames (the integration loop steps aside while a service waits), so they answer within about one
+frame's integration time while frames keep arriving. Frames the mapper cannot keep up with are
+dropped oldest first (`max_queue`), counted (`dropped_backlog`) and warned about.
+
+Files: every path a request names (save_map, load_map) is confined to `data_root`
+(`recon_core.paths.confined_path`: relative paths are taken in it, `..`, NUL bytes, empty paths and
+anything resolving outside it are refused with a failure response). A damaged map given to load_map
+is refused the same way and the current map is kept.
+
+Checkpoints (`checkpoint.*` of the mapper config): every `checkpoint.every_n_frames` frames and/or
+`checkpoint.every_s` seconds, and on shutdown (SIGINT/SIGTERM), into `<data_root>/checkpoints`
+(generations written atomically, `panoptic_mapping.checkpoint`); the state is copied under the lock
+and written by a background thread. `resume:=true` starts from the newest good checkpoint.
 
 Parameters: `config_file` (the mapper YAML, empty: config/mapper.yaml), every key of that file under
 its dotted name (`mode`, `tsdf.voxel_size_m`, `keyframes.enabled`, ...; see `ros_nodes.parameters`),
@@ -15,9 +33,14 @@ and the node's own settings, `MapperNodeConfig` (topics, frames, timeouts, publi
 from __future__ import annotations
 
 import collections
+import contextlib
+import json
 import sys
+import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
@@ -25,20 +48,24 @@ from rclpy.node import Node
 from scene_recon_interfaces.msg import PanopticEntityArray
 from scene_recon_interfaces.srv import ExtractEntities, LoadMap, ResetMap, SaveMap, SegmentImage
 from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
+from panoptic_mapping.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointStore
 from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.dataio.transforms import TransformLookupError
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
-from panoptic_mapping.mapper import PanopticMapper
+from panoptic_mapping.mapper import MapSnapshot, PanopticMapper
 from panoptic_mapping.pipeline import class_metas
 from recon_core.classes import load_class_table
-from recon_core.config import CONFIG_DIR, ConfigError, Settings, setting
+from recon_core.config import CONFIG_DIR, Settings, setting
+from recon_core.errors import CheckpointError, SceneReconError
 from recon_core.frame import DatasetError, RGBDFrame
+from recon_core.paths import confined_path
 from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
-from ros_nodes.entity_conversions import entity_to_msg, map_markers
+from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, map_markers
 from ros_nodes.parameters import declare_config, declare_config_file
-from ros_nodes.qos import ENTITIES, SENSOR_RELIABLE
+from ros_nodes.qos import ENTITIES, SENSOR_RELIABLE, STATUS
 from ros_nodes.runner import run_node
 from ros_nodes.tf_listener import TFListener
 
@@ -72,6 +99,11 @@ class MapperNodeConfig(Settings):
     max_queue: int = setting(30, min=1, doc="frames waiting to be integrated; older ones are dropped")
     class_table: str = setting("", doc="class table YAML (default config/classes.yaml); the segmentation "
                                "service's onnx.class_table must be the same")
+    data_root: str = setting(DEFAULT_MAP_ROOT, doc="folder the paths of save_map / load_map are confined "
+                             "to (relative paths are taken in it); checkpoints go to <data_root>/checkpoints")
+    resume: bool = setting(False, doc="start from the newest good checkpoint in <data_root>/checkpoints")
+    status_period_s: float = setting(10.0, min=0.0, min_exclusive=True,
+                                     doc="period (s) of the status log line and the mapper_status topic")
 
 
 class MapperNode(Node):
@@ -88,12 +120,27 @@ class MapperNode(Node):
         self.include_meshes = settings.publish_meshes
         self.max_queue = settings.max_queue
         self.class_table = load_class_table(settings.class_table) if settings.class_table else None
+        self.data_root = Path(settings.data_root).expanduser().resolve()
         self.mapper = PanopticMapper(self.config, class_metas(self.class_table))
+        # the map is guarded by `lock`; a service waiting for it makes the integration loop step
+        # aside (`_services_waiting`), so a service answers within one frame's integration time
+        self.lock = threading.Lock()
+        self._services_waiting = 0
+        self._waiting_lock = threading.Lock()
+        self.last_service_wait_s = 0.0
+        self.checkpointer: Checkpointer | None = None
+        self._checkpoint_thread: threading.Thread | None = None
+        if self.config.checkpoint.enabled:
+            store = CheckpointStore(self.data_root / CHECKPOINT_DIR, keep=self.config.checkpoint.keep)
+            self.checkpointer = Checkpointer(store, self.config.checkpoint)
+            if settings.resume:
+                self._resume(store)
         # inputs run on callback groups of their own (other executor threads), so TF and images keep
         # arriving while a frame is being integrated; TF has a group to itself: sharing one with
-        # the image stream starved it (frames then all lacked poses); the map is touched by one group
+        # the image stream starved it (frames then all lacked poses); services have their own group
         inputs = MutuallyExclusiveCallbackGroup()
         self.map_group = MutuallyExclusiveCallbackGroup()
+        services = MutuallyExclusiveCallbackGroup()
         self.tf = TFListener(self, callback_group=MutuallyExclusiveCallbackGroup())
         self.create_subscription(Image, settings.color_topic, self._on_color,
                                  SENSOR_RELIABLE, callback_group=inputs)
@@ -104,22 +151,63 @@ class MapperNode(Node):
         self.seg_client = self.create_client(SegmentImage, settings.segmentation_service)
         self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", ENTITIES)
         self.pub_markers = self.create_publisher(MarkerArray, "panoptic_map_markers", 1)
-        self.create_service(SaveMap, "save_map", self._srv_save, callback_group=self.map_group)
-        self.create_service(LoadMap, "load_map", self._srv_load, callback_group=self.map_group)
-        self.create_service(ResetMap, "reset_map", self._srv_reset, callback_group=self.map_group)
-        self.create_service(ExtractEntities, "extract_entities", self._srv_extract, callback_group=self.map_group)
+        self.pub_status = self.create_publisher(String, "mapper_status", STATUS)
+        self.create_service(SaveMap, "save_map", self._srv_save, callback_group=services)
+        self.create_service(LoadMap, "load_map", self._srv_load, callback_group=services)
+        self.create_service(ResetMap, "reset_map", self._srv_reset, callback_group=services)
+        self.create_service(ExtractEntities, "extract_entities", self._srv_extract, callback_group=services)
         self.colors: collections.deque[Image] = collections.deque(maxlen=30)
         self.info: CameraInfo | None = None
         self.queue: collections.deque[tuple[Image, Image, float]] = collections.deque()
         self.pending: list[_Pending] = []
         self.counters = collections.Counter()
-        self._changed = False
+        self._changed = self.mapper.frames_integrated > 0  # a resumed map is published at once
         self._published_revision: dict[int, int] = {}
         # entity messages by (id, revision, with mesh): unchanged entities are not converted again
         self._msg_cache: dict[tuple[int, int, bool], object] = {}
         self.create_timer(0.01, self._process, callback_group=self.map_group)
         self.create_timer(self.publish_period_s, self._publish, callback_group=self.map_group)
-        self.create_timer(10.0, self._report, callback_group=inputs)
+        self.create_timer(settings.status_period_s, self._report, callback_group=inputs)
+        self.get_logger().info(f"data root {self.data_root}; checkpoints "
+                               + (f"every {self.config.checkpoint.every_n_frames} frames / "
+                                  f"{self.config.checkpoint.every_s:g} s" if self.checkpointer else "disabled"))
+
+    def _resume(self, store: CheckpointStore) -> None:
+        if not store.generations():
+            self.get_logger().warning(f"resume: no checkpoint in {store.folder}; starting an empty map")
+            return
+        try:
+            ckpt = store.load_latest()  # damaged generations are logged and skipped
+        except CheckpointError as exc:
+            self.get_logger().error(f"resume: {exc}; starting an empty map")
+            return
+        for why in ckpt.skipped:
+            self.get_logger().warning(f"resume: {why}; using the older checkpoint {ckpt.path}")
+        self.mapper = ckpt.mapper
+        assert self.checkpointer is not None
+        self.checkpointer.start(self.mapper.frames_integrated)
+        self.get_logger().info(f"resumed from checkpoint {ckpt.path} ({self.mapper.frames_integrated} frames)")
+
+    # ------------------------------------------------------------------ map lock
+    @contextlib.contextmanager
+    def _service_turn(self) -> Iterator[None]:
+        """The map's lock, for a service: the integration loop steps aside while one waits.
+
+        The time waited is kept in `last_service_wait_s` (and reported by the services' messages)."""
+        t0 = time.perf_counter()
+        with self._waiting_lock:
+            self._services_waiting += 1
+        try:
+            with self.lock:
+                self.last_service_wait_s = time.perf_counter() - t0
+                yield
+        finally:
+            with self._waiting_lock:
+                self._services_waiting -= 1
+
+    def _timing(self, t0: float) -> str:
+        return (f"({1000 * self.last_service_wait_s:.0f} ms waiting for the map, "
+                f"{1000 * (time.perf_counter() - t0):.0f} ms in all)")
 
     # ------------------------------------------------------------------ inputs
     def _on_info(self, msg: CameraInfo) -> None:
@@ -138,6 +226,10 @@ class MapperNode(Node):
         while len(self.queue) > self.max_queue:  # cannot keep up: drop the oldest, keep the newest
             self.queue.popleft()
             self.counters["dropped_backlog"] += 1
+            self.get_logger().warning(
+                f"mapper cannot keep up: oldest queued frame dropped ({self.counters['dropped_backlog']} dropped "
+                f"so far, {self.counters['integrated']} integrated; queue {self.max_queue})",
+                throttle_duration_sec=5.0)
 
     def _make_frame(self, color_msg: Image, depth_msg: Image) -> RGBDFrame | None:
         stamp = stamp_to_ns(depth_msg.header.stamp)
@@ -155,6 +247,13 @@ class MapperNode(Node):
 
     # ------------------------------------------------------------------ processing
     def _process(self) -> None:
+        if self._services_waiting:
+            return  # a service waits for the map: let it have it first
+        with self.lock:
+            self._process_locked()
+        self._maybe_checkpoint()
+
+    def _process_locked(self) -> None:
         self._collect_segmentations()
         if not self.queue:
             return
@@ -249,78 +348,161 @@ class MapperNode(Node):
             self.get_logger().error(f"frame not integrated: {exc}", throttle_duration_sec=5.0)
 
     # ------------------------------------------------------------------ outputs
-    def _entities_msg(self, include_meshes: bool) -> PanopticEntityArray:
-        ents = self.mapper.entities(with_meshes=True)
+    def _entities_msg(self, ents: list, include_meshes: bool, publishing: bool) -> PanopticEntityArray:
+        """The message of extracted entities; runs outside the map's lock (the mesh conversion is slow).
+
+        Only the publisher (one thread) updates the conversion cache and the published revisions."""
         msg = PanopticEntityArray()
         msg.header.frame_id = self.map_frame
         msg.header.stamp = self.get_clock().now().to_msg()
-        cache = {}
+        old, cache = self._msg_cache, {}
         for e in ents:
             key = (int(e.id), int(e.revision), include_meshes)
-            cache[key] = self._msg_cache.get(key) or entity_to_msg(e, include_meshes)
-        self._msg_cache = cache
+            cache[key] = old.get(key) or entity_to_msg(e, include_meshes)
         msg.entities = list(cache.values())
         ids = {e.id for e in ents}
         msg.removed_ids = sorted(i for i in self._published_revision if i not in ids)
-        self._published_revision = {e.id: e.revision for e in ents}
-        return msg, ents
+        if publishing:
+            self._msg_cache = cache
+            self._published_revision = {e.id: e.revision for e in ents}
+        return msg
 
     def _publish(self) -> None:
-        if not self._changed:
+        if not self._changed or self._services_waiting:
             return
-        self._changed = False
         try:
-            msg, ents = self._entities_msg(self.include_meshes)
+            with self.lock:  # only the extraction needs the map; the conversions run outside
+                self._changed = False
+                ents = self.mapper.entities(with_meshes=True)
+            msg = self._entities_msg(ents, self.include_meshes, publishing=True)
         except (RuntimeError, ValueError) as exc:  # never let one bad extraction take the node down
             self.get_logger().error(f"entity extraction failed: {exc}", throttle_duration_sec=5.0)
             return
         self.pub_entities.publish(msg)
         self.pub_markers.publish(map_markers(ents, self.map_frame, msg.header.stamp))
 
+    def status(self) -> dict:
+        """What `mapper_status` and the status log line report."""
+        cp = self.checkpointer
+        return {"frames_integrated": self.mapper.frames_integrated, "keyframes": self.mapper.keyframes,
+                "dropped_frames": self.counters["dropped_backlog"], "queue": len(self.queue),
+                "counters": dict(self.counters), "checkpoints": cp.saved if cp else 0,
+                "last_checkpoint": str(cp.last_path) if cp and cp.last_path else "",
+                "last_checkpoint_s": round(cp.last_cost_s, 3) if cp else 0.0}
+
     def _report(self) -> None:
-        self.get_logger().info(f"frames integrated {self.counters['integrated']}, keyframes {self.mapper.keyframes}, "
-                               f"counters {dict(self.counters)}")
+        status = self.status()
+        self.pub_status.publish(String(data=json.dumps(status)))
+        line = (f"frames integrated {self.counters['integrated']}, dropped {status['dropped_frames']}, keyframes "
+                f"{status['keyframes']}, queue {status['queue']}, checkpoints {status['checkpoints']}, "
+                f"counters {dict(self.counters)}")
+        if status["dropped_frames"]:
+            self.get_logger().warning(line)
+        else:
+            self.get_logger().info(line)
+
+    # ------------------------------------------------------------------ checkpoints
+    def _maybe_checkpoint(self) -> None:
+        cp = self.checkpointer
+        if cp is None or not cp.due(self.mapper.frames_integrated):
+            return
+        if self._checkpoint_thread is not None and self._checkpoint_thread.is_alive():
+            return  # the previous one is still being written
+        with self.lock:
+            snapshot = self.mapper.snapshot()  # a copy: the write below runs while mapping goes on
+        cp.start(int(snapshot.meta["frames_integrated"]))  # the next interval counts from this snapshot
+        self._checkpoint_thread = threading.Thread(target=self._write_checkpoint, args=(snapshot,),
+                                                   name="checkpoint", daemon=True)
+        self._checkpoint_thread.start()
+
+    def _write_checkpoint(self, snapshot: MapSnapshot) -> None:
+        assert self.checkpointer is not None
+        try:
+            path = self.checkpointer.save(snapshot, {"frames_integrated": snapshot.meta["frames_integrated"]})
+            self.get_logger().info(f"checkpoint {path} ({self.checkpointer.last_cost_s:.2f} s)")
+        except (OSError, ValueError) as exc:
+            self.counters["checkpoint_failed"] += 1
+            self.get_logger().error(f"checkpoint failed: {exc}", throttle_duration_sec=30.0)
+
+    def on_shutdown(self) -> None:
+        """Checkpoint what was integrated since the last checkpoint (the runner calls this on SIGINT/SIGTERM)."""
+        if self._checkpoint_thread is not None:
+            self._checkpoint_thread.join(timeout=60)
+        cp = self.checkpointer
+        if cp is None or self.mapper.frames_integrated == 0 or (
+                cp.last_path is not None and cp.last_frames == self.mapper.frames_integrated):
+            return
+        with self.lock:
+            snapshot = self.mapper.snapshot()
+        self._write_checkpoint(snapshot)
 
     # ------------------------------------------------------------------ services
+    def _confined(self, requested: str) -> Path:
+        return confined_path(self.data_root, requested)
+
     def _srv_save(self, req: SaveMap.Request, res: SaveMap.Response) -> SaveMap.Response:
         from recon_core.entity import save_entities
 
+        t0 = time.perf_counter()
         try:
-            self.mapper.save(req.path)
-            save_entities(self.mapper.entities(), req.path, self.map_frame)
-            res.success, res.message = True, f"map saved to {req.path}"
-        except OSError as exc:
+            folder = self._confined(req.path)
+            with self._service_turn():
+                snapshot = self.mapper.snapshot()
+                ents = self.mapper.entities()
+            snapshot.write(folder)
+            save_entities(ents, folder, self.map_frame)
+            res.success, res.message = True, f"map saved to {folder} {self._timing(t0)}"
+        except (OSError, ValueError) as exc:  # PathConfinementError is both
             res.success, res.message = False, f"cannot save to {req.path!r}: {exc}"
         return res
 
     def _srv_load(self, req: LoadMap.Request, res: LoadMap.Response) -> LoadMap.Response:
         try:
-            self.mapper = PanopticMapper.load(req.path)
-            self._changed = True
-            res.success, res.message = True, f"map loaded from {req.path}"
-        except (OSError, ValueError, ConfigError) as exc:
+            folder = self._confined(req.path)
+            mapper = PanopticMapper.load(folder)  # read outside the lock: mapping goes on meanwhile
+            with self._service_turn():
+                self.mapper = mapper
+                self.pending.clear()
+                self._changed = True
+                if self.checkpointer is not None:  # the next checkpoint interval counts from the loaded map
+                    self.checkpointer.start(mapper.frames_integrated)
+            res.success, res.message = True, f"map loaded from {folder}"
+        except (OSError, ValueError, SceneReconError) as exc:
             res.success, res.message = False, f"cannot load {req.path!r}: {exc} (the current map is kept)"
+        except Exception as exc:  # a damaged file must never take the node down
+            res.success, res.message = False, (f"cannot load {req.path!r}: {type(exc).__name__}: {exc} "
+                                               "(the current map is kept)")
+        if not res.success:
+            self.get_logger().error(res.message)
         return res
 
     def _srv_reset(self, _req: ResetMap.Request, res: ResetMap.Response) -> ResetMap.Response:
-        self.mapper = PanopticMapper(self.config, class_metas(self.class_table))
-        self.pending.clear()
-        self.queue.clear()
-        self._changed = True
-        res.success, res.message = True, "map reset"
+        t0 = time.perf_counter()
+        fresh = PanopticMapper(self.config, class_metas(self.class_table))  # allocated outside the lock
+        with self._service_turn():
+            self.mapper = fresh
+            self.pending.clear()
+            self.queue.clear()
+            self._changed = True
+            if self.checkpointer is not None:
+                self.checkpointer.start(0)
+        res.success, res.message = True, f"map reset {self._timing(t0)}"
         return res
 
     def _srv_extract(self, req: ExtractEntities.Request, res: ExtractEntities.Response) -> ExtractEntities.Response:
+        t0 = time.perf_counter()
         try:
-            res.entities, _ = self._entities_msg(req.include_meshes)
-            res.success, res.message = True, f"{len(res.entities.entities)} entities"
+            with self._service_turn():
+                ents = self.mapper.entities(with_meshes=True)  # boxes come from the meshes
+            res.entities = self._entities_msg(ents, req.include_meshes, publishing=False)
+            res.success, res.message = True, f"{len(res.entities.entities)} entities {self._timing(t0)}"
         except (RuntimeError, ValueError) as exc:
             res.success, res.message = False, f"entity extraction failed: {exc}"
         return res
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(MapperNode, args, threads=3)
+    return run_node(MapperNode, args, threads=5)
 
 
 if __name__ == "__main__":

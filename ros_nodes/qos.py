@@ -16,8 +16,16 @@ TF_STATIC = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=R
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
-#: The mapper's entity snapshots: only the newest matters, but it must arrive.
-ENTITIES = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE)
+#: The mapper's entity snapshots (each holds every entity): only the newest matters, but it must
+#: arrive, also to a consumer started (or restarted) after it was published: transient-local.
+#: (A transient-local subscriber matches transient-local publishers only; a volatile one matches both.)
+#: Depth 2 as before: a consumer that falls one snapshot behind still sees its `removed_ids`.
+ENTITIES = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+#: Status reports (the mapper's counters): the newest, also for a late `ros2 topic echo`.
+STATUS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 TF_DYNAMIC = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
 

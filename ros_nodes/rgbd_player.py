@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass
 
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from tf2_msgs.msg import TFMessage
@@ -21,7 +22,6 @@ from tf2_msgs.msg import TFMessage
 from panoptic_mapping.dataio import DataInputConfig, DatasetError
 from panoptic_mapping.dataio.registry import open_dataset
 from recon_core.config import Settings, setting
-from recon_core.ros_env import ensure_ros_environment
 from ros_nodes.conversions import (
     depth_to_image,
     intrinsics_to_camera_info,
@@ -31,6 +31,7 @@ from ros_nodes.conversions import (
 )
 from ros_nodes.parameters import declare_config
 from ros_nodes.qos import SENSOR_RELIABLE, TF_DYNAMIC
+from ros_nodes.runner import init_ros
 
 
 @dataclass
@@ -146,17 +147,16 @@ class RGBDPlayer(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    ensure_ros_environment()
-    rclpy.init(args=args)
+    stop = init_ros(args)  # SIGINT/SIGTERM set `stop`: the loop ends, the node is destroyed, exit 0
     node = RGBDPlayer()
     try:
-        while rclpy.ok() and not node.finished:
+        while rclpy.ok() and not node.finished and not stop.is_set():
             rclpy.spin_once(node, timeout_sec=0.1)
         # let reliable subscribers drain the last messages before the publishers go away
         end = time.monotonic() + 0.5
-        while rclpy.ok() and time.monotonic() < end:
+        while rclpy.ok() and time.monotonic() < end and not stop.is_set():
             rclpy.spin_once(node, timeout_sec=0.05)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         node.destroy_node()

@@ -1,35 +1,76 @@
-"""One way to run a node: environment, init, spin until Ctrl-C / SIGTERM, clean shutdown."""
+"""One way to run a node: environment, init, spin until Ctrl-C / SIGTERM, clean shutdown (exit 0).
+
+SIGINT and SIGTERM only set a flag (`init_ros` installs the handlers instead of rclpy's own, which
+shut the context down at once): the spin loop sees it between two waits, the executor finishes the
+callbacks still running, the node's `on_shutdown()` runs (the mapper's last checkpoint), and only
+then are the node and the context destroyed. Shutting rclpy down from inside the signal handler
+made a callback that was publishing at that moment die with InvalidHandle (a traceback, exit 1).
+"""
 
 from __future__ import annotations
 
 import signal
+import threading
 from collections.abc import Callable
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from recon_core.ros_env import ensure_ros_environment
+
+#: How often (s) the spin loop looks at the stop flag.
+STOP_POLL_S = 0.1
+
+
+def init_ros(args: list[str] | None = None) -> threading.Event:
+    """rclpy.init without rclpy's signal handlers; returns the event SIGINT/SIGTERM set."""
+    ensure_ros_environment()
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+
+    def _on_signal(_signum: int, _frame: object) -> None:
+        stop.set()
+
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, _on_signal)
+    return stop
+
+
+def spin_until_stopped(node: Node, stop: threading.Event, threads: int = 1) -> None:
+    """Spin `node` (on `threads` executor threads) until `stop` is set or rclpy shuts down; the callbacks
+    still running when it stops are finished before this returns."""
+    executor: Executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=STOP_POLL_S)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown(timeout_sec=30)
+
+
+def shutdown_node(node: Node) -> None:
+    """The node's `on_shutdown()` (if any; its failure is logged), then destroy it and the context."""
+    hook = getattr(node, "on_shutdown", None)
+    if hook is not None:
+        try:
+            hook()
+        except Exception as exc:  # a failing clean-up is reported, the exit stays orderly
+            node.get_logger().error(f"shutdown: {type(exc).__name__}: {exc}")
+    node.destroy_node()
+    rclpy.try_shutdown()
 
 
 def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 1) -> int:
     """Create the node with `factory` and spin it (on `threads` executor threads); returns the exit code."""
-    ensure_ros_environment()
-    rclpy.init(args=args)
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
+    stop = init_ros(args)
     node = factory()
     try:
-        if threads > 1:
-            from rclpy.executors import MultiThreadedExecutor
-
-            executor = MultiThreadedExecutor(num_threads=threads)
-            executor.add_node(node)
-            executor.spin()
-        else:
-            rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_stopped(node, stop, threads)
     finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+        shutdown_node(node)
     return 0

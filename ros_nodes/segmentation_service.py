@@ -28,7 +28,6 @@ for generated bags); a request is matched to the label image whose stamp equals 
 
 from __future__ import annotations
 
-import signal
 import sys
 import threading
 import time
@@ -39,7 +38,6 @@ from typing import Any
 import numpy as np
 import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from scene_recon_interfaces.msg import SegmentInfo
 from scene_recon_interfaces.srv import SegmentImage
@@ -55,10 +53,10 @@ from panoptic_mapping.segmentation import (
 from panoptic_mapping.segmentation.config import DEFAULT_SEGMENTATION_YAML
 from recon_core.config import ConfigError, Settings, setting
 from recon_core.frame import DatasetError
-from recon_core.ros_env import ensure_ros_environment
 from ros_nodes.conversions import image_to_depth, image_to_labels, image_to_rgb, labels_to_image, stamp_to_ns
 from ros_nodes.parameters import declare_config, declare_config_file
 from ros_nodes.qos import SENSOR_RELIABLE
+from ros_nodes.runner import init_ros, shutdown_node, spin_until_stopped
 
 NODE_NAME = "segmentation_service"
 DEFAULT_LABELS_TOPIC = "/ground_truth/panoptic_labels"
@@ -244,26 +242,18 @@ def _fmt_stamp(ns: int) -> str:
 
 
 def main(args: list[str] | None = None) -> int:
-    ensure_ros_environment()
-    rclpy.init(args=args)
+    stop = init_ros(args)
     try:
         node = SegmentationService()
     except (SegmentationError, ConfigError, DatasetError, KeyError, OSError) as exc:
         rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
         rclpy.try_shutdown()
         return 1
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
-    executor = MultiThreadedExecutor(num_threads=2)
-    executor.add_node(node)
     try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_stopped(node, stop, threads=2)
     finally:
         node.log_stats()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+        shutdown_node(node)
     return 0
 
 

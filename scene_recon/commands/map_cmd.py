@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from scene_recon.commands.common import add_data_options, data_config_from_args, print_json
@@ -51,7 +53,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "(text) from the input's world frame to a z-up frame. The rotation is written to map.json "
                    "(gravity_alignment)")
     p.add_argument("--no-keyframes", action="store_true", help="segment every frame")
-    p.add_argument("--resume", help="continue from a map saved in this folder")
+    p.add_argument("--resume", nargs="?", const="", metavar="DIR",
+                   help="continue from the newest good checkpoint in DIR/checkpoints (default DIR: --out); of the "
+                   "same recording: from the first frame it had not read; of another one, or a folder holding only "
+                   "a saved map (map.npz/map.json): the map continues with every frame of SOURCE. A damaged newest "
+                   "checkpoint is reported and the older one used")
+    p.add_argument("--checkpoint-every", type=int, metavar="FRAMES",
+                   help="checkpoint after this many frames (default checkpoint.every_n_frames of the mapper config: "
+                   "100; 0: never by count)")
+    p.add_argument("--checkpoint-every-s", type=float, metavar="S",
+                   help="checkpoint after this many seconds (default checkpoint.every_s: 60; 0: never by time)")
+    p.add_argument("--no-checkpoints", action="store_true",
+                   help="write no checkpoints (a kill then loses the run); SIGINT/SIGTERM still stop cleanly")
     p.add_argument("--seed", type=int, default=0, help="oracle noise seed")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_data_options(p)
@@ -110,6 +123,12 @@ def mapper_config_from_args(args: argparse.Namespace):
         overrides["tsdf.min_depth_m"] = args.min_depth
     if args.no_keyframes:
         overrides["keyframes.enabled"] = False
+    if getattr(args, "checkpoint_every", None) is not None:
+        overrides["checkpoint.every_n_frames"] = args.checkpoint_every
+    if getattr(args, "checkpoint_every_s", None) is not None:
+        overrides["checkpoint.every_s"] = args.checkpoint_every_s
+    if getattr(args, "no_checkpoints", False):
+        overrides["checkpoint.enabled"] = False
     path = args.config or (CONFIG_DIR / "mapper.yaml" if (CONFIG_DIR / "mapper.yaml").is_file() else None)
     return load_config(MapperConfig, path, overrides)
 
@@ -118,8 +137,58 @@ def mapper_config_from_args(args: argparse.Namespace):
 EXIT_EMPTY = 3
 
 
-def run(args: argparse.Namespace) -> int:
+def resume_state(args: argparse.Namespace):
+    """(checkpoint to continue, or None; map to continue with all frames, or None) of `--resume`."""
+    from panoptic_mapping.checkpoint import CHECKPOINT_DIR, CheckpointStore
     from panoptic_mapping.mapper import PanopticMapper
+
+    if args.resume is None:
+        return None, None
+    folder = Path(args.resume or args.out)
+    store = CheckpointStore(folder / CHECKPOINT_DIR)
+    if store.generations():
+        ckpt = store.load_latest()  # a damaged generation is logged (warning) and skipped; none usable: error
+        source = ckpt.progress.get("source")
+        if source and source != str(Path(args.source).resolve()):
+            print(f"checkpoint {ckpt.path} is of {source}: its map continues with every frame of {args.source}",
+                  file=sys.stderr)
+            return None, ckpt.mapper
+        if not args.json:
+            print(f"resuming from checkpoint {ckpt.path}: {ckpt.progress.get('frames_read', 0)} frames already read")
+        return ckpt, None
+    if (folder / "map.json").is_file() or (folder / "map.npz").is_file():
+        return None, PanopticMapper.load(folder)
+    raise FileNotFoundError(f"--resume: {folder} holds no checkpoint ({CHECKPOINT_DIR}/gen-*) and no saved map "
+                            "(map.npz + map.json)")
+
+
+class _StopOnSignal:
+    """SIGINT/SIGTERM ask the mapping loop to stop after the current frame (it then checkpoints)."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._old: dict[int, object] = {}
+
+    def __call__(self) -> bool:
+        return self.signum is not None
+
+    def _handle(self, signum: int, _frame: object) -> None:
+        if self.signum is None:
+            print(f"\n{signal.Signals(signum).name}: stopping after this frame (checkpoint first)", file=sys.stderr)
+        self.signum = signum
+
+    def __enter__(self) -> _StopOnSignal:
+        if threading.current_thread() is threading.main_thread():
+            self._old = {s: signal.signal(s, self._handle) for s in (signal.SIGINT, signal.SIGTERM)}
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        for s, old in self._old.items():
+            signal.signal(s, old)  # type: ignore[arg-type]
+
+
+def run(args: argparse.Namespace) -> int:
+    from panoptic_mapping.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointStore
     from panoptic_mapping.pipeline import map_recording, write_map_outputs
     from recon_core.classes import load_class_table
     from scene_recon.synthetic.overview import render_map_picture
@@ -136,9 +205,23 @@ def run(args: argparse.Namespace) -> int:
     segmenter = build_segmenter(args, name, table)
     if segmenter is not None and hasattr(segmenter, "description") and not args.json:
         print(f"model: {segmenter.description} (onnxruntime on {segmenter.provider})")
-    mapper = PanopticMapper.load(args.resume) if args.resume else None
-    mapper, run_stats = map_recording(args.source, segmenter, mapper_config_from_args(args), data_cfg,
-                                      progress=not args.json, mapper=mapper, class_table=table)
+    ckpt, mapper = resume_state(args)
+    config = mapper_config_from_args(args)
+    checkpointer = None
+    if config.checkpoint.enabled:
+        store = CheckpointStore(Path(args.out) / CHECKPOINT_DIR, keep=config.checkpoint.keep)
+        checkpointer = Checkpointer(store, config.checkpoint)
+    with _StopOnSignal() as stop:
+        mapper, run_stats = map_recording(args.source, segmenter, config, data_cfg, progress=not args.json,
+                                          mapper=mapper, class_table=table, checkpointer=checkpointer,
+                                          resume=ckpt, stop=stop)
+    if run_stats.interrupted:
+        name = signal.Signals(stop.signum or signal.SIGINT).name
+        where = (f"checkpoint {checkpointer.last_path} written" if checkpointer is not None
+                 and checkpointer.last_path is not None else "no checkpoint (--no-checkpoints)")
+        print(f"scene-recon map: interrupted by {name} after {run_stats.frames_read} frames; {where}; continue with "
+              f"--resume {args.out}", file=sys.stderr)
+        return 128 + int(stop.signum or signal.SIGINT)
     run_info = {"segmenter": name, "source": str(args.source)}
     if name == "oracle":
         run_info["noise"] = args.noise
@@ -149,6 +232,8 @@ def run(args: argparse.Namespace) -> int:
     ents, summary = write_map_outputs(args.out, mapper, run_stats, extra=run_info)
     out = Path(args.out)
     written = ["entities.json", "meshes/", "map.npz", "map.json", "summary.json"]
+    if checkpointer is not None and checkpointer.saved:
+        written.append(f"{CHECKPOINT_DIR}/")
     try:
         if render_map_picture(ents, run_stats.poses, out / "panoptic_map.png"):
             written.append("panoptic_map.png")

@@ -129,7 +129,7 @@ def test_message_conversions_round_trip(tmp_path):
             _entity_msg(3, "cup", [0.4, 0.3, 0.75], [0.48, 0.38, 0.85])]
     by_uri = PanopticEntity(id=4, class_name="box", revision=3, mesh_uri=f"file://{tmp_path / 'box.ply'}")
     trimesh.creation.box(extents=[0.2, 0.2, 0.2]).apply_translation([-1, -1, 0.1]).export(tmp_path / "box.ply")
-    entities = [entity_from_msg(m) for m in [*msgs, by_uri]]
+    entities = [entity_from_msg(m, mesh_root=tmp_path) for m in [*msgs, by_uri]]  # by URI: only under a root
     assert entities[0].category == "layout" and entities[3].revision == 3 and len(entities[3].faces) == 12
     graph = build_contact_graph(entities)
     msg = graph_to_msg(graph, Header(frame_id="map"))

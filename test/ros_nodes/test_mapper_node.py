@@ -43,7 +43,7 @@ def test_mapper_node_maps_a_bag_with_the_segmentation_service(tmp_path):
                           "-p", f"oracle.ground_truth:={summary['ground_truth']}", "-p", "oracle.level:=clean"],
                          env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
         subprocess.Popen([py, "-m", "ros_nodes.mapper_node", "--ros-args", "-p", f"config_file:={mapper_cfg}",
-                          "-p", "publish_period_s:=1.0"],
+                          "-p", "publish_period_s:=1.0", "-p", f"data_root:={tmp_path}"],
                          env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
     ]
     rclpy.init()
