@@ -5,12 +5,11 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
 import trimesh
-from testsupport.ros import domain_id
+from testsupport.ros import call_service, domain_id, spin_until
 
 pytestmark = pytest.mark.ros
 
@@ -48,26 +47,6 @@ def _room():
     builder = ContactGraphBuilder(load_scene_graph_config())
     builder.update(entities)
     return entities, builder.build(name="room")
-
-
-def _spin_until(node, predicate, timeout: float) -> bool:
-    import rclpy
-
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        rclpy.spin_once(node, timeout_sec=0.05)
-        if predicate():
-            return True
-    return False
-
-
-def _call(node, client, request, timeout: float = 30.0):
-    import rclpy
-
-    future = client.call_async(request)
-    rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
-    assert future.done(), "service call timed out"
-    return future.result()
 
 
 def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
@@ -114,11 +93,11 @@ def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
         node.create_subscription(TFMessage, "/tf_static", on_static, TF_STATIC)
         pub_entities = node.create_publisher(PanopticEntityArray, "panoptic_entities", ENTITIES)
         pub_graph = node.create_publisher(ContactGraph, "contact_graph", LATCHED)
-        assert _spin_until(node, lambda: pub_entities.get_subscription_count() > 0, 60), "node never subscribed"
+        assert spin_until(node, lambda: pub_entities.get_subscription_count() > 0, 60), "node never subscribed"
         header = Header(frame_id="map")
         pub_entities.publish(PanopticEntityArray(header=header, entities=[entity_to_msg(e) for e in entities]))
         pub_graph.publish(graph_to_msg(graph, header))
-        ready = _spin_until(node, lambda: bool(descriptions) and "cup_5" in tf and bool(joint_states), 120)
+        ready = spin_until(node, lambda: bool(descriptions) and "cup_5" in tf and bool(joint_states), 120)
         assert ready, (f"description {bool(descriptions)}, tf frames {sorted(tf)}, joint states {len(joint_states)}, "
                        f"node exit {proc.poll()}")
         urdf_path = tmp_path / "scene.urdf"
@@ -132,33 +111,33 @@ def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
         act = node.create_client(ApplySceneAction, "apply_scene_action")
         assert act.wait_for_service(timeout_sec=30)
         door = next(n for n in joint_states[-1].name if n.startswith("fridge_3__door"))
-        res = _call(node, act, ApplySceneAction.Request(action=ApplySceneAction.Request.SET_JOINT, joint_name=door,
-                                                        joint_value=1.0))
+        res, _ = call_service(node, act, ApplySceneAction.Request(
+            action=ApplySceneAction.Request.SET_JOINT, joint_name=door, joint_value=1.0))
         assert res.success, res.message
         assert res.revision == 2
-        assert _spin_until(node, lambda: door in joint_states[-1].name and abs(
+        assert spin_until(node, lambda: door in joint_states[-1].name and abs(
             joint_states[-1].position[joint_states[-1].name.index(door)] - 1.0) < 1e-6, 10)
-        assert _spin_until(node, lambda: "<!-- revision 2 -->" in descriptions[-1].data, 10)
+        assert spin_until(node, lambda: "<!-- revision 2 -->" in descriptions[-1].data, 10)
 
-        res = _call(node, act, ApplySceneAction.Request(action=ApplySceneAction.Request.REPARENT,
-                                                        object_name="cup_5", new_parent="shelf_4"))
+        res, _ = call_service(node, act, ApplySceneAction.Request(
+            action=ApplySceneAction.Request.REPARENT, object_name="cup_5", new_parent="shelf_4"))
         assert res.success, res.message
         assert res.revision == 3
-        assert _spin_until(node, lambda: np.linalg.norm(tf["cup_5"][:3] - cup_before[:3]) > 0.05, 10)
+        assert spin_until(node, lambda: np.linalg.norm(tf["cup_5"][:3] - cup_before[:3]) > 0.05, 10)
 
         before = descriptions[-1].data
-        bad = _call(node, act, ApplySceneAction.Request(action=ApplySceneAction.Request.SET_JOINT, joint_name=door,
-                                                        joint_value=5.0))
+        bad, _ = call_service(node, act, ApplySceneAction.Request(
+            action=ApplySceneAction.Request.SET_JOINT, joint_name=door, joint_value=5.0))
         assert not bad.success and "outside its limits" in bad.message and bad.revision == 3
-        unknown = _call(node, act, ApplySceneAction.Request(action=ApplySceneAction.Request.MOVE_OBJECT,
-                                                            object_name="unicorn"))
+        unknown, _ = call_service(node, act, ApplySceneAction.Request(
+            action=ApplySceneAction.Request.MOVE_OBJECT, object_name="unicorn"))
         assert not unknown.success and "unicorn" in unknown.message
-        _spin_until(node, lambda: False, 0.5)
+        spin_until(node, lambda: False, 0.5)
         assert descriptions[-1].data == before
 
         export = node.create_client(Trigger, "export_scene")
         assert export.wait_for_service(timeout_sec=10)
-        res = _call(node, export, Trigger.Request())
+        res, _ = call_service(node, export, Trigger.Request())
         assert res.success and (out_dir / "scene.urdf").is_file() and (out_dir / "joint_states.json").is_file()
     finally:
         node.destroy_node()
