@@ -341,15 +341,20 @@ def _class_count_hint(cfg: OnnxModelConfig, sig: ModelSignature) -> int | None:
     return len(names) if names else None
 
 
-def metadata_names(metadata: Mapping[str, str]) -> tuple[str, ...] | None:
-    """Class names an ultralytics or YOLOv5 export stores in its metadata (`names`: "{0: 'person', ...}")."""
-    raw = metadata.get("names")
+def _metadata_literal(metadata: Mapping[str, str], key: str) -> Any:
+    """A Python literal an exporter wrote into the model metadata (None when absent or unreadable)."""
+    raw = metadata.get(key)
     if not raw:
         return None
     try:
-        value = ast.literal_eval(raw)
+        return ast.literal_eval(raw)
     except (ValueError, SyntaxError):
         return None
+
+
+def metadata_names(metadata: Mapping[str, str]) -> tuple[str, ...] | None:
+    """Class names an ultralytics or YOLOv5 export stores in its metadata (`names`: "{0: 'person', ...}")."""
+    value = _metadata_literal(metadata, "names")
     if isinstance(value, dict) and value and all(isinstance(k, int) for k in value):
         if sorted(value) != list(range(len(value))):
             return None
@@ -361,13 +366,7 @@ def metadata_names(metadata: Mapping[str, str]) -> tuple[str, ...] | None:
 
 def _metadata_imgsz(metadata: Mapping[str, str]) -> tuple[int, int] | None:
     """(width, height) from ultralytics' `imgsz` metadata ([h, w])."""
-    raw = metadata.get("imgsz")
-    if not raw:
-        return None
-    try:
-        value = ast.literal_eval(raw)
-    except (ValueError, SyntaxError):
-        return None
+    value = _metadata_literal(metadata, "imgsz")
     if isinstance(value, int):
         value = [value, value]
     if isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(v, int) and v > 0 for v in value):
