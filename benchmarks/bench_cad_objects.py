@@ -27,8 +27,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import write_result
-from cad_replacement.alignment import GeometryCache
 from cad_replacement.cad.procedural import build_model
+from cad_replacement.geometry_cache import GeometryCache, library_store
 from cad_replacement.matching import candidate_classes
 from cad_replacement.observation import ObjectObservation, front_direction_from_context
 from cad_replacement.replace_config import CadReplacementConfig
@@ -88,7 +88,7 @@ def run(scenes: list[str], methods: list[str], samples: int) -> dict:
         for lib_name, lib in libs.items():
             for method in methods:
                 cfg = CadReplacementConfig(method=method)
-                cache = GeometryCache(lib.model, samples=cfg.ae_model_samples)
+                cache = GeometryCache(lib.model, samples=cfg.ae_model_samples, store=library_store(lib))
                 for obs, _ in obs_list:  # warm the feature and geometry caches (untimed)
                     for c in candidate_classes(obs.class_name):
                         for entry, _f in lib.candidates(c):

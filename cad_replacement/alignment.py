@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -59,7 +58,6 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-from cad_replacement.cad.library import CadEntry
 from cad_replacement.cad.model import CadModel, Link
 from recon_core.geometry.box import GravityBox
 from recon_core.geometry.transforms import as_mesh
@@ -211,7 +209,9 @@ class ModelGeometry:
     """
 
     key: str
-    model: CadModel
+    #: The model, or a function that builds it: geometry restored from the disk store needs the
+    #: full model (meshes, joints) only for the few candidates that reach the full fit.
+    source: CadModel | Callable[[], CadModel]
     scene: o3d.t.geometry.RaycastingScene
     center: NDArray[np.float64]
     size: NDArray[np.float64]
@@ -227,7 +227,18 @@ class ModelGeometry:
     envelope: o3d.t.geometry.RaycastingScene | None = None
     static_samples: NDArray[np.bool_] | None = None
     joint_values: dict[str, float] = field(default_factory=dict)
+    #: Whether the model has revolute/prismatic joints (known without building the model).
+    articulated_model: bool = False
+    #: The closed model's mesh and the swept envelope's, as built (kept for the disk store).
+    mesh: trimesh.Trimesh | None = None
+    swept: trimesh.Trimesh | None = None
     _bare: CadModel | None = None
+
+    @property
+    def model(self) -> CadModel:
+        if not isinstance(self.source, CadModel):
+            self.source = self.source()
+        return self.source
 
     @property
     def bare_model(self) -> CadModel:
@@ -264,7 +275,8 @@ class ModelGeometry:
         hit = scene.cast_rays(o3c.Tensor(rays))["t_hit"].numpy()
         return ModelGeometry(
             key=self.key,
-            model=self.model,
+            source=self.model,
+            articulated_model=True,
             scene=scene,
             center=self.center,
             size=self.size,
@@ -320,7 +332,10 @@ class ModelGeometry:
             static = np.array([names[i] not in moving for i in range(len(names))])[li]
         return cls(
             key=key,
-            model=model,
+            source=model,
+            articulated_model=bool(model.movable_joints),
+            mesh=whole,
+            swept=swept if envelope is not None else None,
             scene=scene,
             center=0.5 * (lo + hi),
             size=np.maximum(hi - lo, 1e-6),
@@ -337,27 +352,6 @@ class ModelGeometry:
             static_samples=static,
             joint_values=model.zero_configuration(),
         )
-
-
-@dataclass
-class GeometryCache:
-    """LRU cache of ``ModelGeometry`` by library entry key (models repeat across a scene)."""
-
-    loader: Callable[[CadEntry], CadModel]
-    capacity: int = 256
-    samples: int = 1200
-    _items: OrderedDict[str, ModelGeometry] = field(default_factory=OrderedDict)
-
-    def get(self, entry: CadEntry) -> ModelGeometry:
-        hit = self._items.get(entry.key)
-        if hit is not None:
-            self._items.move_to_end(entry.key)
-            return hit
-        geom = ModelGeometry.build(entry.key, self.loader(entry), samples=self.samples)
-        self._items[entry.key] = geom
-        while len(self._items) > self.capacity:
-            self._items.popitem(last=False)
-        return geom
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -1001,7 +995,7 @@ def box_start(
     """
     scale = box_start_scale(box, geom, box_rotation, bottom_z, clip)
     center = np.asarray(box.center[:2], dtype=np.float64).copy()
-    if not geom.model.movable_joints:
+    if not geom.articulated_model:
         return scale, center
     k = int(np.argmax(np.abs(box_rotation[:, 0])))  # box axis the model front lies along
     if k == 2:  # lying on its back: the vertical extent is fixed by the support anyway
@@ -1139,7 +1133,6 @@ __all__ = [
     "AlignmentError",
     "AlignmentProblem",
     "FaceAreas",
-    "GeometryCache",
     "ModelGeometry",
     "Placement",
     "PreparedObservation",

@@ -38,7 +38,6 @@ from recon_core.classes import ClassTable
 from .alignment import (
     AlignmentError,
     AlignmentProblem,
-    GeometryCache,
     ModelGeometry,
     Placement,
     PreparedObservation,
@@ -48,6 +47,7 @@ from .alignment import (
     posed_scene,
 )
 from .articulation import ArticulationResult, estimate_joint_values
+from .geometry_cache import GeometryCache, library_store
 from .matching import MatchCandidate, candidate_classes, default_class_table, match_candidates, observed_planes
 from .observation import ObjectObservation
 from .replace_config import CadReplacementConfig
@@ -208,7 +208,8 @@ def replace_object(
     with ``chosen=None`` and a message.
     """
     cfg = config or CadReplacementConfig()
-    cache = cache if cache is not None else GeometryCache(library.model, samples=cfg.ae_model_samples)
+    cache = cache if cache is not None else GeometryCache(library.model, samples=cfg.ae_model_samples,
+                                                                   store=library_store(library))
     timings: dict[str, float] = {}
     t_all = time.perf_counter()
     obs = observation

@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from cad_replacement.alignment import GeometryCache
 from cad_replacement.cad.model import CadModel, Link, bounding_box_features
+from cad_replacement.geometry_cache import GeometryCache, library_store
 from cad_replacement.layout_models import MIN_LAYOUT_THICKNESS, box_model
 from cad_replacement.observation import (
     MESH_SAMPLES,
@@ -218,7 +218,8 @@ class CadReplacer:
         self.config = config or CadReplacementConfig()
         self.class_table = class_table or load_class_table()
         self.physical_check = physical_check
-        self.cache = GeometryCache(library.model, samples=self.config.ae_model_samples)
+        self.cache = GeometryCache(library.model, samples=self.config.ae_model_samples,
+                                   store=library_store(library))
         self._results: dict[int, _Cached] = {}
 
     # ------------------------------------------------------------------ per node

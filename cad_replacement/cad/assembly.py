@@ -16,7 +16,7 @@ by an anchor point and an axis. ``Assembly.build`` then
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import manifold3d as m3
@@ -237,9 +237,8 @@ class Assembly:
         for lb in self._links.values():
             offset = shift - origins[lb.name]
             mesh = _link_mesh(lb, offset, self.class_name)
-            shapes = part_collisions([p.shifted(offset) for p in lb.parts])
             links.append(Link(name=lb.name, mesh=mesh, color=lb.color,
-                              collisions=shapes if shapes is not None else mesh_collisions(mesh)))
+                              collisions=_collision_builder([p.shifted(offset) for p in lb.parts], mesh)))
         joints = [
             Joint(
                 name=js.name,
@@ -281,6 +280,14 @@ class Assembly:
             params=params,
             source=source,
         )
+
+
+def _collision_builder(parts: Sequence[Primitive], mesh: trimesh.Trimesh) -> Callable[[], tuple[CollisionShape, ...]]:
+    """The link's collision shapes, computed on first use (exact primitives, else convex pieces)."""
+    def build() -> tuple[CollisionShape, ...]:
+        shapes = part_collisions(parts)
+        return shapes if shapes is not None else mesh_collisions(mesh)
+    return build
 
 
 def _link_mesh(lb: LinkBuilder, offset: NDArray[np.float64], class_name: str) -> trimesh.Trimesh:

@@ -16,7 +16,7 @@ given in the joint frame) -- the URDF convention, so export/import are one-to-on
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,26 +34,57 @@ ParamValue = float | int | str
 RGBA = tuple[float, float, float, float]
 
 
-@dataclass(frozen=True, eq=False)
+#: Collision shapes of a link, or a zero-argument function that computes them on first use.
+CollisionSource = tuple[CollisionShape, ...] | Callable[[], tuple[CollisionShape, ...] | None] | None
+
+
 class Link:
     """A rigid part; ``mesh`` is expressed in the link frame (procedural links are watertight).
 
     ``collisions`` (primitives or convex pieces in the link frame) and ``inertial`` are optional:
     procedural builders know their primitives, imported assets may carry both; an exporter
     derives what is missing.
+
+    Collisions may be given as a function: matching and alignment build and scale dozens of
+    candidate models per object but only the chosen one is ever collided or exported, so the
+    shapes (box CSG, cup rings, re-mapped convex pieces) are computed on first access and kept.
     """
 
-    name: str
-    mesh: trimesh.Trimesh
-    color: RGBA | None = None
-    collisions: tuple[CollisionShape, ...] | None = None
-    inertial: Inertial | None = None
+    __slots__ = ("_collision_fn", "_collisions", "color", "inertial", "mesh", "name")
 
-    def __post_init__(self) -> None:
-        if not self.name:
+    def __init__(self, name: str, mesh: trimesh.Trimesh, color: RGBA | None = None,
+                 collisions: CollisionSource = None, inertial: Inertial | None = None) -> None:
+        if not name:
             raise ValueError("link name must be non-empty")
-        if not isinstance(self.mesh, trimesh.Trimesh):
-            raise TypeError(f"link {self.name!r}: mesh must be a trimesh.Trimesh")
+        if not isinstance(mesh, trimesh.Trimesh):
+            raise TypeError(f"link {name!r}: mesh must be a trimesh.Trimesh")
+        self.name = name
+        self.mesh = mesh
+        self.color = color
+        self.inertial = inertial
+        self._collision_fn = collisions if callable(collisions) else None
+        self._collisions = None if callable(collisions) else collisions
+
+    @property
+    def collisions(self) -> tuple[CollisionShape, ...] | None:
+        if self._collision_fn is not None:
+            self._collisions = self._collision_fn()
+            self._collision_fn = None
+        return self._collisions
+
+    @property
+    def has_collisions(self) -> bool:
+        """Whether collision shapes exist or will be computed (without computing them)."""
+        return self._collision_fn is not None or self._collisions is not None
+
+    def with_inertial(self, inertial: Inertial | None) -> Link:
+        """The same link with another inertial (collisions still computed at most once, lazily)."""
+        out = Link(self.name, self.mesh, self.color, None, inertial)
+        out._collisions, out._collision_fn = self._collisions, self._collision_fn
+        return out
+
+    def __repr__(self) -> str:
+        return f"Link(name={self.name!r}, faces={len(self.mesh.faces)})"
 
 
 @dataclass(frozen=True, eq=False)
@@ -275,7 +306,11 @@ def _mapped_link(link: Link, mesh: trimesh.Trimesh, affine: NDArray[np.float64])
     Boxes scaled along their axes stay boxes, otherwise shapes become convex mesh pieces
     (``transform_shapes``); the inertial keeps its density (``transform_inertial``).
     """
-    collisions = None if link.collisions is None else transform_shapes(link.collisions, affine)
+    collisions: CollisionSource = None
+    if link.has_collisions:
+        def collisions() -> tuple[CollisionShape, ...] | None:  # lazily: see ``Link``
+            shapes = link.collisions
+            return None if shapes is None else transform_shapes(shapes, affine)
     inertial = None if link.inertial is None else transform_inertial(link.inertial, affine)
     return Link(name=link.name, mesh=mesh, color=link.color, collisions=collisions, inertial=inertial)
 

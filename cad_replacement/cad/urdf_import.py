@@ -418,7 +418,7 @@ def _unit_scaled(model: CadModel, s: float) -> CadModel:
         if old.inertial is not None and new.inertial is not None:
             fixed = Inertial(mass=old.inertial.mass, center_of_mass=new.inertial.center_of_mass,
                              inertia=old.inertial.inertia * s**2)
-            new = dataclasses.replace(new, inertial=fixed)
+            new = new.with_inertial(fixed)
         links.append(new)
     return dataclasses.replace(scaled, links=tuple(links))
 
