@@ -63,6 +63,21 @@ def test_ransac_stops_below_min_fraction_and_is_deterministic() -> None:
     assert extract_planes(np.zeros((2, 3))) == []
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_preemptive_scoring_finds_the_planes_of_full_scoring(seed: int) -> None:
+    """Ranking hypotheses on a subset must not change which planes are found (only the cost)."""
+    rng = np.random.default_rng(seed)
+    pts, fi = trimesh.sample.sample_surface(_box(), 3000, seed=seed)
+    nrm = _box().face_normals[fi]
+    pts = pts + rng.normal(0.0, 0.004, pts.shape)
+    full = extract_planes(pts, normals=nrm, distance_threshold=0.012, seed=seed, score_subset=0)
+    fast = extract_planes(pts, normals=nrm, distance_threshold=0.012, seed=seed)
+    assert len(fast) == len(full) == 6
+    for p in fast:
+        assert any(p.normal @ q.normal > 0.999 and abs(p.d - q.d) < 0.003 for q in full)
+    assert sum(p.area for p in fast) == pytest.approx(sum(p.area for p in full), rel=0.03)
+
+
 def test_fit_gravity_box_finds_yaw_of_a_mesh() -> None:
     box = _box()
     box.apply_transform(trimesh.transformations.rotation_matrix(0.3, (0, 0, 1)))
