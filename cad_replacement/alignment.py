@@ -699,7 +699,7 @@ class AlignmentProblem:
         self.round_w = round_weight * np.sqrt(max(len(points), 1))
         self.horizontal_axes = np.argsort(self.up_row)[:2]
         self._cache_x: NDArray[np.float64] | None = None
-        self._cache: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._cache: tuple[NDArray[np.float64], NDArray[np.float64] | None] | None = None
         self.samples = np.zeros((0, 3))
         self.sample_normals = np.zeros((0, 3))
         self.sample_idx = np.zeros(0, dtype=np.int64)
@@ -788,10 +788,10 @@ class AlignmentProblem:
     def _point_terms(
         self, scene: o3d.t.geometry.RaycastingScene, p_model: NDArray[np.float64], s: NDArray[np.float64],
         a: NDArray[np.float64], t: NDArray[np.float64], subset: NDArray[np.int64] | None = None,
-        conf: _Configuration | None = None,
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        conf: _Configuration | None = None, with_jac: bool = True,
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
         """Signed map-frame distances of the points (``subset`` of them) to a surface given in the
-        model frame (``p_model``: those points in the model frame), and d/dx."""
+        model frame (``p_model``: those points in the model frame), and d/dx (None without ``with_jac``)."""
         c_m = self.geom.center
         links = None
         if conf is not None:
@@ -811,20 +811,27 @@ class AlignmentProblem:
         d = np.linalg.norm(diff, axis=1)
         sign = np.where(np.einsum("ij,ij->i", diff, nq) < 0.0, -1.0, 1.0)
         v = np.where((d > 1e-9)[:, None], diff * (sign / np.maximum(d, EPS))[:, None], nq)
-        r, jac = sign * d, -np.einsum("ni,nip->np", v, self._dq(mc, q - t, s, a, conf, links))
+        r = sign * d
+        jac = -np.einsum("ni,nip->np", v, self._dq(mc, q - t, s, a, conf, links)) if with_jac else None
         if normals is not None:
             # Opposite normals: residual sqrt(d^2 + tau^2) (smooth, >= tau), pulling only weakly.
             wrong = np.einsum("ij,ij->i", nq, normals) < 0.0
             if np.any(wrong):
                 rf = np.sqrt(d * d + self.tau * self.tau)
-                jac = np.where(wrong[:, None], jac * (r / rf)[:, None], jac)
+                if jac is not None:
+                    jac = np.where(wrong[:, None], jac * (r / rf)[:, None], jac)
                 r = np.where(wrong, rf, r)
         return r, jac
 
-    def _evaluate(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def _evaluate(self, x: NDArray[np.float64], with_jac: bool = True
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+        """Residuals and (``with_jac``) their Jacobian at ``x``; the last evaluation is cached, as
+        MINPACK asks for the Jacobian at the point whose residuals it just had. Scoring a start
+        needs no Jacobian, which is about half the cost of an evaluation."""
         if self._cache_x is not None and np.array_equal(x, self._cache_x):
             assert self._cache is not None
-            return self._cache
+            if self._cache[1] is not None or not with_jac:
+                return self._cache
         s = self.scales(x)
         off = 1 if self.uniform else 3
         a = rot_z(x[off]) @ self.r0
@@ -834,21 +841,25 @@ class AlignmentProblem:
         conf = self.kin.at(self.joint_values(x)) if self.kin is not None else None
         # point -> CAD: map into the canonical frame, closest point there, map back (true distance).
         p_model = ((self.points - t) @ a) / s + c_m
-        r, jac = self._point_terms(self.geom.scene if conf is None else conf.scene, p_model, s, a, t, conf=conf)
+        r, jac = self._point_terms(self.geom.scene if conf is None else conf.scene, p_model, s, a, t, conf=conf,
+                                   with_jac=with_jac)
         far = np.flatnonzero(np.abs(r) > self.margin) if self.envelope else np.zeros(0, dtype=np.int64)
         if len(far):
             assert self.geom.envelope is not None
             # Explained by a moving part at another joint value: sqrt(d^2 + margin^2) (smooth, > margin),
             # so only points farther than the margin from the closed model need the envelope.
-            r_e, jac_e = self._point_terms(self.geom.envelope, p_model[far], s, a, t, far)
+            r_e, jac_e = self._point_terms(self.geom.envelope, p_model[far], s, a, t, far, with_jac=with_jac)
             r_m = np.sqrt(r_e * r_e + self.margin * self.margin)
             use = r_m < np.abs(r[far])
             r[far] = np.where(use, r_m, r[far])
-            jac[far] = np.where(use[:, None], jac_e * (r_e / r_m)[:, None], jac[far])
+            if jac is not None and jac_e is not None:
+                jac[far] = np.where(use[:, None], jac_e * (r_e / r_m)[:, None], jac[far])
         if self.robust:
             r, dr = soft_l1(r, self.tau)
-            jac = jac * dr[:, None]
-        res_parts, jac_parts = [r], [jac]
+            if jac is not None:
+                jac = jac * dr[:, None]
+        res_parts: list[NDArray[np.float64]] = [r]
+        jac_parts: list[NDArray[np.float64]] = [] if jac is None else [jac]
         # CAD -> observed surfels (ours): normal and tangential-excess residuals per visible sample.
         if self.prepared is not None and len(self.samples):
             prep = self.prepared
@@ -881,17 +892,19 @@ class AlignmentProblem:
                 et = e - en[:, None] * no
                 etn = np.linalg.norm(et, axis=1)
                 g = np.maximum(etn - prep.surfel_radius, 0.0)
-                dy = self._dq(ms[vis], ys - t, s, a, conf, None if sample_links is None else sample_links[vis])
-                j_n = -np.einsum("ni,nip->np", no, dy)
-                tdir = et / np.maximum(etn, EPS)[:, None]
-                j_g = -np.einsum("ni,nip->np", tdir, dy) * (g > 0.0)[:, None]
                 rn, rg = en, g
                 if self.robust:
                     rn, dn = soft_l1(rn, self.tau)
                     rg, dg = soft_l1(rg, self.tau)
-                    j_n, j_g = j_n * dn[:, None], j_g * dg[:, None]
                 res_parts += [w * rn, w * rg]
-                jac_parts += [w * j_n, w * j_g]
+                if with_jac:
+                    dy = self._dq(ms[vis], ys - t, s, a, conf, None if sample_links is None else sample_links[vis])
+                    j_n = -np.einsum("ni,nip->np", no, dy)
+                    tdir = et / np.maximum(etn, EPS)[:, None]
+                    j_g = -np.einsum("ni,nip->np", tdir, dy) * (g > 0.0)[:, None]
+                    if self.robust:
+                        j_n, j_g = j_n * dn[:, None], j_g * dg[:, None]
+                    jac_parts += [w * j_n, w * j_g]
             else:
                 res_parts.append(np.zeros(2 * len(vis)))
                 jac_parts.append(np.zeros((2 * len(vis), len(x))))
@@ -916,7 +929,7 @@ class AlignmentProblem:
             ja = np.zeros((3, len(x)))
             ja[:, :3] = self.aniso * (np.eye(3) - 1.0 / 3.0)
             jac_parts.append(ja)
-        out = (np.concatenate(res_parts), np.concatenate(jac_parts, axis=0))
+        out = (np.concatenate(res_parts), np.concatenate(jac_parts, axis=0) if with_jac else None)
         self._cache_x = x.copy()
         self._cache = out
         return out
@@ -927,7 +940,7 @@ class AlignmentProblem:
         Dividing by the visible samples only (not by all drawn ones) keeps a hypothesis that
         shows no face to the observed directions from looking good for having nothing to check.
         """
-        r = self.residuals(x)
+        r = self._evaluate(x, with_jac=False)[0]
         n = len(self.points)
         total = float(np.sum(r[:n] ** 2))
         count = n
@@ -941,7 +954,9 @@ class AlignmentProblem:
         return self._evaluate(x)[0]
 
     def jacobian(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        return self._evaluate(x)[1]
+        jac = self._evaluate(x)[1]
+        assert jac is not None
+        return jac
 
     def solve(self, x0: NDArray[np.float64], max_nfev: int) -> tuple[NDArray[np.float64], float, int]:
         """Levenberg-Marquardt from ``x0``; returns parameters (scales clipped), cost and evaluations."""
