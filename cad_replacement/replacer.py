@@ -41,7 +41,7 @@ from cad_replacement.observation import (
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replace_object import CadSource, ObjectReplacement, replace_object
 from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
-from recon_core.classes import ClassTable, load_class_table
+from recon_core.classes import ClassTable, UnknownClassError, load_class_table
 from recon_core.contact_graph import ContactGraph, GraphNode, SupportEdge
 from recon_core.entity import Entity
 from recon_core.geometry.box import GravityBox
@@ -105,14 +105,20 @@ class _Cached:
 MAX_SUPPORT_GAP = 0.03
 
 
-def support_height(edge: SupportEdge | None, parent: GraphNode | None, child_box: GravityBox | None = None
-                   ) -> float | None:
+def support_height(edge: SupportEdge | None, parent: GraphNode | None, child_box: GravityBox | None = None,
+                   max_size: float | None = None) -> float | None:
     """z of the plane a supported object stands on (Eq. 11's constraint), or ``None``.
 
     The support edge's plane when it is horizontal, else the parent's box top. When the child's
     observed bottom lies more than ``MAX_SUPPORT_GAP`` above that (a mapped cabinet offers its shelf
     planes too, and the edge may name one below the top the bottle stands on), the parent's
     highest upward plane under the child's bottom is used, or the child's bottom itself.
+
+    Except on the layout (the floor): an object the graph stands on the floor whose class can be
+    as tall as its observed top is above the floor (``max_size``, the class table's ``max_size_m``)
+    reaches down to it: its lower part (table legs, a chair's frame, a plinth) was not segmented
+    with it, as happens on mapped tables whose top alone got the label. A cup seen 70 cm above
+    the floor cannot be that tall and keeps its own bottom.
     """
     plane: Plane | None = edge.plane if edge is not None else None
     z: float | None = None
@@ -121,6 +127,9 @@ def support_height(edge: SupportEdge | None, parent: GraphNode | None, child_box
     elif parent is not None and parent.box is not None:
         z = parent.box.z_max
     if z is None or child_box is None or child_box.z_min - z <= MAX_SUPPORT_GAP:
+        return z
+    if parent is not None and parent.category == LAYOUT and max_size is not None \
+            and child_box.z_max - z <= max_size:
         return z
     bottom = child_box.z_min
     ups = [float(-p.plane.d / p.plane.normal[2]) for p in (parent.planes if parent is not None else [])
@@ -222,6 +231,13 @@ class CadReplacer:
                                    store=library_store(library))
         self._results: dict[int, _Cached] = {}
 
+    def _max_size(self, class_name: str) -> float | None:
+        """The class table's largest extent of a class (None: unknown class or not given)."""
+        try:
+            return self.class_table.by_name(class_name).max_size_m
+        except UnknownClassError:
+            return None
+
     # ------------------------------------------------------------------ per node
     def _observation(self, node: GraphNode, entity: Entity, graph: ContactGraph,
                      walls: list[Plane], obstacles: list[GravityBox]) -> ObjectObservation:
@@ -231,7 +247,7 @@ class CadReplacer:
         assert box is not None
         front = front_direction_from_context(box, [b for b in obstacles if b is not box], walls)
         mesh = trimesh.Trimesh(entity.vertices, entity.faces, process=False)
-        support_z = support_height(edge, parent, node.box_unrefined or box)
+        support_z = support_height(edge, parent, node.box_unrefined or box, self._max_size(node.class_name))
         if len(mesh.faces) == 0:
             raise ObservationError(f"{node.name!r}: mesh is empty")
         points, normals = sample_mesh(mesh, MESH_SAMPLES, 0)
@@ -321,7 +337,8 @@ class CadReplacer:
                 records.append(record)
                 continue
             if node.category != LAYOUT and edge is not None:
-                z = support_height(edge, graph.nodes[edge.parent_id], node.box_unrefined or node.box)
+                z = support_height(edge, graph.nodes[edge.parent_id], node.box_unrefined or node.box,
+                                   self._max_size(node.class_name))
                 if z is not None:
                     rest_on(obj, z)
             record.pose = obj.pose.tolist()

@@ -181,3 +181,28 @@ def test_support_height_trusts_the_plane_only_near_the_observed_bottom():
     assert support_height(edge, cabinet, near) == pytest.approx(0.965)  # occluded bottom: the plane
     cabinet.planes = [up(0.965)]
     assert support_height(edge, cabinet, bottle) == pytest.approx(1.075)  # no plane there: its bottom
+
+
+def test_support_height_on_the_floor_reaches_down_for_furniture_only():
+    """A mapped table whose top alone got the label stands on the floor (its legs were missed): its
+    support is the floor when the class can be that tall; a cup seen at table height cannot."""
+    from cad_replacement.replacer import support_height
+    from recon_core.contact_graph import GraphNode, SupportEdge
+    from recon_core.geometry.box import GravityBox
+    from recon_core.geometry.plane import Plane, SurfacePlane
+
+    floor = GraphNode(1, "floor_1", "floor", "layout",
+                      box=GravityBox(np.array([0.0, 0.0, -0.01]), np.array([5.0, 5.0, 0.02]), 0.0),
+                      planes=[SurfacePlane(Plane(np.array([0.0, 0.0, 1.0]), 0.0, area=20.0))])
+    edge = SupportEdge(parent_id=1, child_id=2, plane=Plane(np.array([0.0, 0.0, 1.0]), 0.0))
+    top_only = GravityBox(np.array([0.0, 0.0, 0.72]), np.array([1.2, 0.8, 0.06]), 0.0)  # 0.69 .. 0.75
+    assert support_height(edge, floor, top_only, max_size=2.0) == pytest.approx(0.0)
+    assert support_height(edge, floor, top_only) == pytest.approx(0.69)  # class size unknown: as observed
+    cup = GravityBox(np.array([0.0, 0.0, 0.8]), np.array([0.08, 0.08, 0.1]), 0.0)  # top 0.85 > 0.15
+    assert support_height(edge, floor, cup, max_size=0.15) == pytest.approx(0.75)
+    # on furniture (not the layout) the gap rule is unchanged
+    table = GraphNode(3, "table_1", "table", "rigid",
+                      box=GravityBox(np.array([0.0, 0.0, 0.375]), np.array([1.2, 0.8, 0.75]), 0.0), planes=[])
+    on_table = SupportEdge(parent_id=3, child_id=2, plane=Plane(np.array([0.0, 0.0, 1.0]), -0.75))
+    lifted = GravityBox(np.array([0.0, 0.0, 0.95]), np.array([0.1, 0.1, 0.1]), 0.0)  # bottom 0.9
+    assert support_height(on_table, table, lifted, max_size=2.0) == pytest.approx(0.9)
