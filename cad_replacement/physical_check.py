@@ -48,6 +48,8 @@ class CheckReport:
     switches: dict[str, int] = field(default_factory=dict)
     #: |gap| (m) between each supported object and the support surface it was snapped onto, before the snap.
     support_gaps_before: dict[str, float] = field(default_factory=dict)
+    #: horizontal distance (m) each object was moved out of a wall it was sunk into
+    wall_pushes: dict[str, float] = field(default_factory=dict)
     rounds: int = 0
     seconds: float = 0.0
 
@@ -137,11 +139,83 @@ class PhysicalCheck:
             conflicts = self._conflicts(scene, solids, [mover.name, other.name]) + [
                 c for c in conflicts if mover.name not in c[:2] and other.name not in c[:2]]
         result = ReplacedScene(scene.name, [objects[o.name] for o in scene], scene.frame_id, scene.revision)
+        report.wall_pushes = push_out_of_walls(result, solids, self.max_penetration, hulls)
         report.support_gaps_before = snap_to_supports(result)
         solids = {o.name: ObjectSolids(o, hulls) for o in result}
         report.conflicts_after = self._conflicts(result, solids)
         report.seconds = time.perf_counter() - t0
         return result
+
+
+#: Largest horizontal move (m) that takes an object out of a wall: farther, the wall or the pose is
+#: wrong and moving the object would only hide it.
+MAX_WALL_PUSH_M = 0.10
+
+
+def _wall_axis(wall: PlacedObject) -> NDArray[np.float64]:
+    """Unit horizontal direction across a wall slab (its thinnest horizontal box axis)."""
+    size = wall.model.features.box_size
+    axis = wall.pose[:3, :3][:, int(np.argmin(size[:2]))].copy()
+    axis[2] = 0.0
+    return axis / max(float(np.linalg.norm(axis)), 1e-12)
+
+
+def push_out_of_walls(scene: ReplacedScene, solids: dict[str, ObjectSolids], max_penetration: float,
+                      hulls: bool = False) -> dict[str, float]:
+    """Move furniture and objects sunk into a wall slab straight out of it, towards the room.
+
+    Walls are slabs behind the observed room-side face; a cabinet whose fitted CAD model is a few
+    centimetres deeper than the mapped one pokes into the wall, which no candidate switch cures
+    (every candidate is fitted to the same points) and which a simulator resolves by throwing it.
+    The object (with what rests on it) moves across the wall by the penetration depth plus 2 mm,
+    at most ``MAX_WALL_PUSH_M`` in all, and only when that clears the wall without sinking it into
+    another one. ``solids`` is updated; returns the distance moved by object.
+    """
+    from cad_replacement.actions import descendants
+
+    walls = [o for o in scene if o.model.source == "box" and o.class_name == "wall"]
+    moved: dict[str, float] = {}
+    if not walls:
+        return moved
+    for obj in scene:
+        if obj.model.source == "box" or obj.name not in solids:
+            continue
+        total = np.zeros(3)
+        for _ in range(3):  # a corner: one wall, then the other
+            hits = [(w, penetration_between(solids[obj.name], solids[w.name])) for w in walls
+                    if solids[obj.name].overlaps(solids[w.name])]
+            hits = [(w, d) for w, d in hits if d > 0.5 * max_penetration]
+            if not hits:
+                break
+            wall, depth = max(hits, key=lambda h: h[1])
+            axis = _wall_axis(wall)
+            centre = 0.5 * (solids[obj.name].lo + solids[obj.name].hi)
+            side = 1.0 if float(axis @ (centre - wall.pose[:3, 3])) >= 0.0 else -1.0
+            step = side * (depth + 0.002) * axis
+            if float(np.linalg.norm(total + step)) > MAX_WALL_PUSH_M:
+                break
+            trial_pose = obj.pose.copy()
+            trial_pose[:3, 3] += step
+            trial = PlacedObject(obj.name, obj.class_name, obj.model, trial_pose, parent=obj.parent,
+                                 parent_link=obj.parent_link, support=obj.support, movable=obj.movable,
+                                 entity_id=obj.entity_id, joint_values=dict(obj.joint_values), scale=obj.scale,
+                                 cad_id=obj.cad_id)
+            trial_solids = ObjectSolids(trial, hulls)
+            after = {w.name: penetration_between(trial_solids, solids[w.name]) for w in walls
+                     if trial_solids.overlaps(solids[w.name])}
+            before = dict((w.name, d) for w, d in hits)
+            # the wall must be cleared (a slab's depth measure saturates at its thickness: an
+            # object through a wall looks only "slab-deep" in), and no other wall entered deeper
+            if after.get(wall.name, 0.0) > 0.5 * max_penetration or any(
+                    d > max(before.get(n, 0.0), 0.5 * max_penetration) for n, d in after.items() if n != wall.name):
+                break
+            for o in [obj, *descendants(scene, obj.name)]:
+                o.pose[:3, 3] += step
+                solids[o.name] = ObjectSolids(o, hulls)
+            total += step
+        if np.any(total):
+            moved[obj.name] = float(np.linalg.norm(total))
+    return moved
 
 
 def _lowest(obj: PlacedObject) -> float:

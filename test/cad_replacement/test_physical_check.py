@@ -100,3 +100,36 @@ def test_snap_puts_an_object_over_the_edge_back_onto_its_surface_and_never_into_
     assert points_in_polygon(centre[None], spot.polygon)[0]
     assert centre[0] < half_depth - 0.25 * min(bottle.size[:2]) + 1e-6  # a margin from the edge
 
+
+
+@pytest.mark.parametrize(("sunk", "moved"), [(0.04, True), (0.3, False)])
+def test_an_object_sunk_into_a_wall_with_no_better_candidate_is_pushed_out(sunk: float, moved: bool):
+    """Every candidate is fitted to the same points, so a cabinet a few cm too deep stays in the wall
+    whatever the switch; it moves out across the wall (with what stands on it), a deep one does not."""
+    wall = box_model("wall", (0.1, 3.0, 2.5))
+    cabinet = build_model("cabinet", 0)
+    cup = build_model("cup", 0)
+    depth, top = float(cabinet.size[0]), float(cabinet.size[2])
+    wall_face = 1.0
+    x = wall_face - 0.5 * depth + sunk
+    scene = ReplacedScene("room", [
+        PlacedObject("floor", "floor", box_model("floor", (6, 6, 0.05)), _pose(0, 0, -0.05)),
+        PlacedObject("wall_1", "wall", wall, _pose(wall_face + 0.05, 0, 0), parent="floor"),
+        PlacedObject("cabinet_1", "cabinet", cabinet, _pose(x, 0, 0, np.pi), parent="floor"),
+        PlacedObject("cup_1", "cup", cup, _pose(x, 0, top), parent="cabinet_1", support="floating", movable=True),
+    ])
+    check = PhysicalCheck()
+    fixed = check(scene, {})
+    report = check.last_report
+    after = {frozenset((a, b)): d for a, b, d in pair_penetrations(fixed)}
+    into_wall = after.get(frozenset(("cabinet_1", "wall_1")), 0.0)
+    if moved:
+        assert report.wall_pushes["cabinet_1"] == pytest.approx(sunk, abs=0.01)
+        assert into_wall <= 0.005
+        shift = fixed.object("cabinet_1").pose[:3, 3] - np.array([x, 0.0, 0.0])
+        assert shift[0] < 0.0 and abs(shift[1]) < 1e-9  # into the room, across the wall only
+        cup_shift = fixed.object("cup_1").pose[:2, 3] - np.array([x, 0.0])
+        np.testing.assert_allclose(cup_shift, shift[:2], atol=1e-9)  # the cup went with it
+    else:
+        assert "cabinet_1" not in report.wall_pushes
+        assert into_wall > 0.04  # still through the wall: the pose is wrong, not a few cm off
