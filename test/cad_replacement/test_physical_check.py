@@ -133,3 +133,60 @@ def test_an_object_sunk_into_a_wall_with_no_better_candidate_is_pushed_out(sunk:
     else:
         assert "cabinet_1" not in report.wall_pushes
         assert into_wall > 0.04  # still through the wall: the pose is wrong, not a few cm off
+
+
+def test_snap_measures_height_in_the_map_for_a_book_lying_on_a_shelf():
+    """A book lying on its side is as tall as it is thick: it fits a shelf lower than the book is
+    long and must stay there (the model's z is horizontal once it lies)."""
+    from cad_replacement.actions import support_spots
+    from cad_replacement.physical_check import snap_to_supports
+
+    cabinet = build_model("cabinet", 0)
+    cab = PlacedObject("cabinet_1", "cabinet", cabinet, _pose(0, 0, 0), parent="floor")
+    shelves = [sp for sp in support_spots(cab) if sp.clearance is not None and sp.link == cabinet.root_link]
+    assert shelves
+    book = build_model("book", 0)
+    thick, long_side = float(np.min(book.size)), float(book.size[2])
+    shelf = next((sp for sp in shelves if thick < 0.8 * sp.clearance and sp.clearance < 0.9 * long_side), None)
+    if shelf is None:
+        pytest.skip("cabinet seed 0 has no shelf lower than a book")
+    lying = np.eye(4)
+    lying[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]  # model z -> map y: the book lies on a cover
+    pose = _pose(*shelf.polygon.mean(axis=0), 0.0) @ lying
+    obj = PlacedObject("book_1", "book", book, pose, parent="cabinet_1", support="floating", movable=True)
+    lowest = float((book.mesh().vertices @ pose[:3, :3].T + pose[:3, 3])[:, 2].min())
+    obj.pose[2, 3] += shelf.height - lowest + 0.004  # 4 mm above the shelf
+    scene = ReplacedScene("room", [PlacedObject("floor", "floor", box_model("floor", (6, 6, 0.05)),
+                                                _pose(0, 0, -0.05)), cab, obj])
+    gaps = snap_to_supports(scene)
+    assert gaps["book_1"] == pytest.approx(0.004, abs=1e-6)  # onto the same shelf, not the top
+    moved = scene.object("book_1")
+    bottom = float((book.mesh().vertices @ moved.pose[:3, :3].T + moved.pose[:3, 3])[:, 2].min())
+    assert bottom == pytest.approx(shelf.height, abs=1e-6)
+
+
+def test_neighbours_on_one_surface_are_slid_apart_after_the_snap():
+    """Two boxes fitted side by side overlap by 1.5 cm (library models a little too big): the smaller
+    slides away along the line between them and both stay on the table."""
+    from cad_replacement.physical_check import separate_neighbours
+    from cad_replacement.solids import ObjectSolids
+
+    table = build_model("table", 0)
+    top = float(table.size[2])
+    big, small = box_model("box", (0.2, 0.2, 0.15)), box_model("box", (0.1, 0.1, 0.1))
+    scene = ReplacedScene("room", [
+        PlacedObject("floor", "floor", box_model("floor", (6, 6, 0.05)), _pose(0, 0, -0.05)),
+        PlacedObject("table_1", "table", table, _pose(0, 0, 0), parent="floor"),
+        PlacedObject("box_1", "box", big, _pose(0.0, 0.0, top), parent="table_1", support="floating", movable=True),
+        PlacedObject("box_2", "box", small, _pose(0.135, 0.0, top), parent="table_1", support="floating",
+                     movable=True),
+    ])
+    solids = {o.name: ObjectSolids(o, False) for o in scene}
+    before = {frozenset((a, b)): d for a, b, d in pair_penetrations(scene)}
+    assert before[frozenset(("box_1", "box_2"))] == pytest.approx(0.015, abs=0.002)
+    moved = separate_neighbours(scene, solids, 0.01)
+    assert list(moved) == ["box_2"] and moved["box_2"] == pytest.approx(0.017, abs=0.002)
+    after = {frozenset((a, b)): d for a, b, d in pair_penetrations(scene)}
+    assert after.get(frozenset(("box_1", "box_2")), 0.0) <= 0.001
+    assert scene.object("box_1").pose[:3, 3].tolist() == [0.0, 0.0, top]
+    assert scene.object("box_2").pose[1, 3] == pytest.approx(0.0) and scene.object("box_2").pose[0, 3] > 0.15
