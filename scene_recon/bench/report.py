@@ -15,6 +15,7 @@ _COLUMNS: list[tuple[str, Any]] = [
     ("run", lambda r: r["label"]),
     ("scene", lambda r: r.get("scene", "")),
     ("total s", lambda r: f"{r['times_s']['total']:.1f}"),
+    ("total CPU s", lambda r: f"{r['cpu_s']['total']:.1f}" if "cpu_s" in r else "-"),
     ("map s", lambda r: f"{r['times_s']['map']:.1f}"),
     ("graph s", lambda r: f"{r['times_s']['graph']:.2f}"),
     ("replace s", lambda r: f"{r['times_s']['replace']:.1f}"),

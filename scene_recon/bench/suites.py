@@ -98,10 +98,11 @@ def _preset_section(runner: SuiteRunner, scenes: list[str], plots_dir: Path) -> 
         fast, acc, bal = by["fast"], by["accurate"], by["balanced"]
         front = pareto_front(rows)
         speed = acc["times_s"]["total"] / max(fast["times_s"]["total"], 1e-9)
+        speed_cpu = acc["cpu_s"]["total"] / max(fast["cpu_s"]["total"], 1e-9)
         paper = by["balanced + paper CAD method"]
         lines = [
-            f"fast is {speed:.2f}x faster than accurate end to end ({fast['times_s']['total']:.1f} s vs "
-            f"{acc['times_s']['total']:.1f} s); accuracy score {accuracy_score(fast):.3f} vs "
+            f"fast is {speed:.2f}x faster than accurate end to end in wall time ({fast['times_s']['total']:.1f} s "
+            f"vs {acc['times_s']['total']:.1f} s), {speed_cpu:.2f}x in CPU time; accuracy score {accuracy_score(fast):.3f} vs "
             f"{accuracy_score(acc):.3f} (PQ {fast['pq']:.1f} vs {acc['pq']:.1f}, box mAP {fast['box_mAP']:.2f} vs "
             f"{acc['box_mAP']:.2f}, GED {fast['ged_ratio']:.3f} vs {acc['ged_ratio']:.3f}, pose success "
             f"{fast['pose_success']} vs {acc['pose_success']})",
@@ -118,7 +119,8 @@ def _preset_section(runner: SuiteRunner, scenes: list[str], plots_dir: Path) -> 
                          "plots": [str(plot)] if plot else [],
                          "text": "Each preset of config/presets/ end to end (oracle segmentation, default noise); "
                                  "score = mean of PQ/100, box mAP, 1 - GED ratio and CAD pose success.",
-                         "summary": {"fast_vs_accurate_speedup": round(speed, 3), "pareto_front": front,
+                         "summary": {"fast_vs_accurate_speedup": round(speed, 3),
+                                     "fast_vs_accurate_speedup_cpu": round(speed_cpu, 3), "pareto_front": front,
                                      "balanced_on_front": "balanced" in front}})
     return sections
 
