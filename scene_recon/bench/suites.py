@@ -103,7 +103,8 @@ def _preset_section(runner: SuiteRunner, scenes: list[str], plots_dir: Path) -> 
         lines = [
             f"fast is {speed:.2f}x faster than accurate end to end in wall time ({fast['times_s']['total']:.1f} s "
             f"vs {acc['times_s']['total']:.1f} s), {speed_cpu:.2f}x in CPU time; accuracy score "
-            f"{accuracy_score(fast):.3f} vs {accuracy_score(acc):.3f} (PQ {fast['pq']:.1f} vs {acc['pq']:.1f}, box mAP {fast['box_mAP']:.2f} vs "
+            f"{accuracy_score(fast):.3f} vs {accuracy_score(acc):.3f} (PQ {fast['pq']:.1f} vs {acc['pq']:.1f}, "
+            f"box mAP {fast['box_mAP']:.2f} vs "
             f"{acc['box_mAP']:.2f}, GED {fast['ged_ratio']:.3f} vs {acc['ged_ratio']:.3f}, pose success "
             f"{fast['pose_success']} vs {acc['pose_success']})",
             f"Pareto front (total time vs score): {', '.join(front)}; balanced is "
