@@ -148,13 +148,15 @@ def accuracy_score(row: dict[str, Any]) -> float:
     return round(sum(parts) / len(parts), 4)
 
 
-def pareto_front(rows: list[dict[str, Any]], time_key: str = "total", score=accuracy_score) -> list[str]:
-    """Labels of the rows no other row beats in both time (lower) and accuracy (higher)."""
+def pareto_front(rows: list[dict[str, Any]], time_key: str = "total", score=accuracy_score,
+                 cpu: bool = False) -> list[str]:
+    """Labels of the rows no other row beats in both time (lower) and accuracy (higher); `cpu`: CPU time."""
+    times = "cpu_s" if cpu else "times_s"
     front = []
     for r in rows:
-        t, a = r["times_s"][time_key], score(r)
-        dominated = any((o["times_s"][time_key] <= t and score(o) >= a)
-                        and (o["times_s"][time_key] < t or score(o) > a) for o in rows if o is not r)
+        t, a = r[times][time_key], score(r)
+        dominated = any((o[times][time_key] <= t and score(o) >= a)
+                        and (o[times][time_key] < t or score(o) > a) for o in rows if o is not r)
         if not dominated:
             front.append(r["label"])
     return front

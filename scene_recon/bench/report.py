@@ -42,8 +42,9 @@ def _table_html(rows: list[dict[str, Any]]) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def plot_pareto(rows: list[dict[str, Any]], path: Path, title: str, time_key: str = "total") -> Path | None:
-    """Accuracy score against time, the Pareto front drawn; None when matplotlib is missing."""
+def plot_pareto(rows: list[dict[str, Any]], path: Path, title: str, time_key: str = "total",
+                cpu: bool = False) -> Path | None:
+    """Accuracy score against (wall or CPU) time, the Pareto front drawn; None when matplotlib is missing."""
     try:
         import matplotlib
 
@@ -51,19 +52,20 @@ def plot_pareto(rows: list[dict[str, Any]], path: Path, title: str, time_key: st
         import matplotlib.pyplot as plt
     except ImportError:
         return None
-    front = set(pareto_front(rows, time_key))
+    times = "cpu_s" if cpu else "times_s"
+    front = set(pareto_front(rows, time_key, cpu=cpu))
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for r in rows:
-        t, a = r["times_s"][time_key], accuracy_score(r)
+        t, a = r[times][time_key], accuracy_score(r)
         ax.scatter(t, a, s=60 if r["label"] in front else 30,
                    marker="o" if r.get("method", "ours") == "ours" and r.get("mode", "full") == "full" else "s",
                    color="tab:red" if r["label"] in front else "tab:blue")
         ax.annotate(r["label"], (t, a), textcoords="offset points", xytext=(4, 4), fontsize=7)
-    pts = sorted((r["times_s"][time_key], accuracy_score(r)) for r in rows if r["label"] in front)
+    pts = sorted((r[times][time_key], accuracy_score(r)) for r in rows if r["label"] in front)
     if len(pts) > 1:
         ax.plot(*zip(*pts, strict=True), color="tab:red", lw=1, alpha=0.6, label="Pareto front")
         ax.legend(fontsize=8)
-    ax.set_xlabel(f"{time_key} time (s)")
+    ax.set_xlabel(f"{time_key} {'CPU' if cpu else 'wall'} time (s)")
     ax.set_ylabel("accuracy score (mean of PQ, box mAP, 1-GED, pose success)")
     ax.set_title(title, fontsize=10)
     ax.grid(True, alpha=0.3)
