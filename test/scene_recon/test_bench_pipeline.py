@@ -34,6 +34,7 @@ def test_a_preset_end_to_end_is_timed_scored_and_skips_an_unchanged_scene(tiny, 
 
 def test_per_frame_times_and_memory_for_every_frame(tiny):
     bag, gt = tiny
-    res = _frame_times(bag, gt)
+    res = _frame_times(bag, gt, preset_name=None)  # the config defaults: every frame
+    assert _frame_times(bag, gt, preset_name="balanced")["frames"] == 6  # every 2nd frame
     assert res["frames"] == 12 and len(res["frame_ms"]) == 12 and len(res["memory_mb"]) == 12
     assert all(ms > 0 for ms in res["frame_ms"]) and res["memory_mb"][-1] >= res["memory_mb"][0] > 0
