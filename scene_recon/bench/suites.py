@@ -186,6 +186,19 @@ def _sweep_sections(runner: SuiteRunner, scene: str, plots_dir: Path) -> list[di
     return sections
 
 
+def _perturbation_section(runner: SuiteRunner, scene: str, plots_dir: Path) -> dict[str, Any]:
+    """Graceful degradation: the balanced preset under the oracle's segmentation noise levels."""
+    rows = [runner.run(scene, preset_spec("balanced", f"noise {level}", noise=level))
+            for level in ("clean", "default", "hard")]
+    plot = plot_series({"score": ([0, 1, 2], [accuracy_score(r) for r in rows]),
+                        "PQ / 100": ([0, 1, 2], [r["pq"] / 100 for r in rows])},
+                       plots_dir / "noise_levels.png",
+                       f"{scene}: segmentation noise clean (0) / default (1) / hard (2)", "oracle noise level", "accuracy")
+    return {"title": "Perturbation: segmentation noise", "rows": rows, "plots": [str(plot)] if plot else [],
+            "text": "The balanced preset with the oracle's noise levels clean, default and hard "
+                    "(config/segmentation.yaml): accuracy should fall gradually, not off a cliff."}
+
+
 def _skip_and_scaling(runner: SuiteRunner, plots_dir: Path, long_frames: int) -> list[dict[str, Any]]:
     from scene_recon.bench.scaling import empty_room, object_count_scaling, per_frame_cost, static_camera
 
@@ -229,6 +242,7 @@ def run_suite(name: str, out: Path, progress: Progress = print, long_frames: int
 
         sections += _preset_section(runner, list(SUITE), out)
         sections += _sweep_sections(runner, "bench-small", out)
+        sections.append(_perturbation_section(runner, "bench-kitchen", out))
         sections += _skip_and_scaling(runner, out, long_frames)
     shutil.rmtree(runner.work, ignore_errors=True)
     wall = time.perf_counter() - runner.t0
