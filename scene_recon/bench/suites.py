@@ -193,7 +193,8 @@ def _perturbation_section(runner: SuiteRunner, scene: str, plots_dir: Path) -> d
     plot = plot_series({"score": ([0, 1, 2], [accuracy_score(r) for r in rows]),
                         "PQ / 100": ([0, 1, 2], [r["pq"] / 100 for r in rows])},
                        plots_dir / "noise_levels.png",
-                       f"{scene}: segmentation noise clean (0) / default (1) / hard (2)", "oracle noise level", "accuracy")
+                       f"{scene}: segmentation noise clean (0) / default (1) / hard (2)", "oracle noise level",
+                       "accuracy")
     return {"title": "Perturbation: segmentation noise", "rows": rows, "plots": [str(plot)] if plot else [],
             "text": "The balanced preset with the oracle's noise levels clean, default and hard "
                     "(config/segmentation.yaml): accuracy should fall gradually, not off a cliff."}
