@@ -12,7 +12,7 @@ REQ_STAMP := $(VENV)/.requirements.stamp
 PKG_STAMP := $(VENV)/.package.stamp
 DEMO_OUT ?= out/demo
 
-.PHONY: help setup system-deps test lint demo bench clean
+.PHONY: help setup system-deps test lint demo bench bench-quick bench-full clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:.*## /\t/' | column -t -s $$'\t'
@@ -52,6 +52,13 @@ demo: setup  ## the main job on the embedded default scene
 
 bench: setup  ## benchmarks (print figures, write JSON under benchmarks/results)
 	$(ROS_ENV) $(PY) benchmarks/run_all.py
+
+BENCH_OUT ?= out/benchmark
+bench-quick: setup  ## end-to-end benchmark, quick suite (< 3 min): presets, time vs accuracy -> $(BENCH_OUT)/quick
+	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite quick --out $(BENCH_OUT)/quick
+
+bench-full: setup  ## end-to-end benchmark, full suite (< 30 min): sweeps, Pareto plots, skips, scaling -> $(BENCH_OUT)/full
+	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite full --out $(BENCH_OUT)/full
 
 clean:  ## remove build products (keeps the venv)
 	rm -rf .build build log out .pytest_cache

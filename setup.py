@@ -42,10 +42,11 @@ setup(
         (f"share/{PACKAGE}/launch", glob("launch/*.py")),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/segmentation", glob("config/segmentation/*.yaml")),
+        (f"share/{PACKAGE}/config/presets", glob("config/presets/*.yaml")),
     ],
     # config/ is installed as the package recon_core.default_config (found through importlib.resources)
     package_dir={"recon_core.default_config": "config"},
-    package_data={"recon_core.default_config": ["*.yaml", "segmentation/*.yaml"]},
+    package_data={"recon_core.default_config": ["*.yaml", "segmentation/*.yaml", "presets/*.yaml"]},
     install_requires=["setuptools"],
     zip_safe=False,
     python_requires=">=3.10",

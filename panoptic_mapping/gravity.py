@@ -130,7 +130,11 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 def rotation_to_z(up: np.ndarray) -> np.ndarray:
     """The smallest rotation (3x3) taking the unit vector ``up`` to +z (Rodrigues)."""
-    u = np.asarray(up, float) / np.linalg.norm(up)
+    v = np.asarray(up, float).reshape(3)
+    n = float(np.linalg.norm(v))
+    if not np.isfinite(n) or n < 1e-12:  # a zero or non-finite up has no direction: refuse, never NaN
+        raise ValueError(f"up must be a finite non-zero 3-vector, got {v.tolist()}")
+    u = v / n
     axis = np.cross(u, Z_UP)
     s, c = float(np.linalg.norm(axis)), float(u @ Z_UP)
     if s < 1e-12:

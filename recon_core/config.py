@@ -355,3 +355,75 @@ def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
         else:
             merged[key] = value
     return merged
+
+
+# ---------------------------------------------------------------------------- presets
+#: Folder (under the config folder) holding the named presets, one YAML file each.
+PRESETS_DIR = "presets"
+#: Sections of a preset file and the stage config each one overrides (through that stage's schema:
+#: `load_config(..., overrides)`, so an unknown or out-of-range key is refused with its dotted name).
+PRESET_SECTIONS = {
+    "mapper": "config/mapper.yaml (panoptic_mapping.config.MapperConfig)",
+    "data": "config/data.yaml (panoptic_mapping.dataio.DataInputConfig)",
+    "scene_graph": "config/scene_graph.yaml (scene_graph.config.SceneGraphConfig)",
+    "cad": "cad_replacement.replace_config.CadReplacementConfig",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Preset:
+    """A named speed/accuracy trade-off: dotted-key overrides of each stage's existing config schema.
+
+    Not a second parameter system: every value lands in the same dataclasses, through the same
+    `load_config`/`build_config` path as the YAML files and the CLI options (which win over it).
+    """
+
+    name: str
+    description: str
+    mapper: dict[str, Any]
+    data: dict[str, Any]
+    scene_graph: dict[str, Any]
+    cad: dict[str, Any]
+
+    def section(self, name: str) -> dict[str, Any]:
+        return dict(getattr(self, name))
+
+
+def preset_names() -> list[str]:
+    """Names of the presets in ``config/presets/`` (sorted)."""
+    folder = CONFIG_DIR / PRESETS_DIR
+    return sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else []
+
+
+def load_preset(name_or_path: str | Path | None) -> Preset | None:
+    """The preset named ``name_or_path`` (``config/presets/NAME.yaml``) or read from a YAML path; None for None."""
+    if name_or_path is None or name_or_path == "":
+        return None
+    path = Path(name_or_path)
+    if path.suffix not in (".yaml", ".yml"):
+        path = CONFIG_DIR / PRESETS_DIR / f"{name_or_path}.yaml"
+    if not path.is_file():
+        raise ConfigError(f"unknown preset {str(name_or_path)!r}: known presets are {preset_names()} "
+                          f"(files in {CONFIG_DIR / PRESETS_DIR}) or give a YAML file")
+    with path.open("r", encoding="utf-8") as fh:
+        data = yaml.safe_load(fh) or {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: top level must be a mapping")
+    unknown = sorted(set(data) - set(PRESET_SECTIONS) - {"description"})
+    if unknown:
+        raise ConfigError(f"{path}: unknown section(s) {unknown}; valid sections are "
+                          f"{sorted(PRESET_SECTIONS)} (and description)")
+    sections: dict[str, dict[str, Any]] = {}
+    for key in PRESET_SECTIONS:
+        value = data.get(key) or {}
+        if not isinstance(value, dict):
+            raise ConfigError(f"{path}: section {key!r} must be a mapping of config keys to values")
+        sections[key] = flatten(value)  # nested or dotted keys alike
+    return Preset(name=path.stem, description=str(data.get("description", "")), **sections)
+
+
+def preset_overrides(preset: Preset | None, section: str, explicit: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Overrides for one stage: the preset's section, then the explicit (CLI) ones on top."""
+    out = preset.section(section) if preset is not None else {}
+    out.update(explicit or {})
+    return out

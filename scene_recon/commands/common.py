@@ -9,7 +9,7 @@ from typing import Any
 
 from panoptic_mapping.dataio import DataInputConfig
 from panoptic_mapping.dataio.intrinsics import parse_intrinsics_option
-from recon_core.config import CONFIG_DIR, load_config
+from recon_core.config import CONFIG_DIR, Preset, load_config, load_preset, preset_names, preset_overrides
 
 #: (option, dest, config key) of the data options that take a value (forwarded by `run` to `map`).
 _VALUE_OPTIONS = (
@@ -40,8 +40,26 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--stride", type=int, help="read every N-th frame")
 
 
+def add_preset_option(p: argparse.ArgumentParser) -> None:
+    """`--preset NAME`: a speed/accuracy preset of config/presets/ (overrides of the stage configs)."""
+    names = preset_names()
+    p.add_argument("--preset", metavar="NAME|YAML",
+                   help=f"speed/accuracy preset ({', '.join(names) or 'config/presets/*.yaml'}, or a YAML file with "
+                   "mapper/data/scene_graph/cad sections): overrides of the stage configs' keys, measured in the "
+                   "README (Benchmarks and presets); options given on the command line win over it")
+
+
+def preset_from_args(args: argparse.Namespace) -> Preset | None:
+    return load_preset(getattr(args, "preset", None))
+
+
+def preset_argv(args: argparse.Namespace) -> list[str]:
+    """`--preset NAME` for another subcommand when one was given."""
+    return ["--preset", str(args.preset)] if getattr(args, "preset", None) else []
+
+
 def data_config_from_args(args: argparse.Namespace) -> DataInputConfig:
-    overrides: dict[str, Any] = {}
+    overrides: dict[str, Any] = preset_overrides(preset_from_args(args), "data")
     for _opt, dest, key in _VALUE_OPTIONS:
         value = getattr(args, dest, None)
         if value is not None and key:

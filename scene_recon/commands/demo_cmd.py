@@ -6,6 +6,8 @@ import argparse
 import shutil
 from pathlib import Path
 
+from scene_recon.commands.common import add_preset_option, preset_argv
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -20,12 +22,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--objects", type=int, default=20)
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--seed", type=int, default=0)
+    add_preset_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from scene_recon.cli import main
 
+    preset = preset_argv(args)
     out = Path(args.out)
     if out.exists():
         shutil.rmtree(out)
@@ -36,13 +40,13 @@ def run(args: argparse.Namespace) -> int:
                                            "--objects", str(args.objects), "--frames", str(args.frames)]),
         ("2. read the recording back through the data layer", ["inspect", str(bag)]),
         ("3. panoptic mapping (oracle segmentation, default noise)",
-         ["map", str(bag), "--out", str(out / "map"), "--segmenter", "oracle", "--noise", "default"]),
+         ["map", str(bag), "--out", str(out / "map"), "--segmenter", "oracle", "--noise", "default", *preset]),
         ("4. map quality against the ground truth", ["eval-map", str(out / "map"), str(gt)]),
-        ("5. contact graph of the mapped entities", ["graph", str(out / "map"), "--out", str(out / "graph")]),
+        ("5. contact graph of the mapped entities", ["graph", str(out / "map"), "--out", str(out / "graph"), *preset]),
         ("6. contact graph against the ground truth",
          ["eval-graph", str(out / "graph" / "contact_graph.json"), str(gt)]),
         ("7. CAD replacement: the interactive scene (URDF + MJCF)",
-         ["replace", str(out / "graph"), "--out", str(out / "scene")]),
+         ["replace", str(out / "graph"), "--out", str(out / "scene"), *preset]),
         ("8. interactive scene against the ground truth (poses, articulation, physics)",
          ["eval-scene", str(out / "scene"), str(gt)]),
     ]

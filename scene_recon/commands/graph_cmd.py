@@ -7,7 +7,7 @@ import re
 import time
 from pathlib import Path
 
-from scene_recon.commands.common import print_json
+from scene_recon.commands.common import add_preset_option, preset_from_args, print_json
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -30,10 +30,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--urdf", action="store_true", help="also write the kinematic tree as URDF under OUT/urdf/")
     p.add_argument("--no-picture", action="store_true", help="do not draw contact_graph.png")
     p.add_argument("--json", action="store_true", help="print the graph summary as JSON instead of the tree")
+    add_preset_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from recon_core.config import preset_overrides
     from recon_core.entity import save_entities
     from recon_core.errors import InputError
     from scene_graph.builder import ContactGraphBuilder
@@ -41,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from scene_graph.joints import load_support_joints
     from scene_recon.sources import load_source
 
-    cfg = load_scene_graph_config(args.config)
+    cfg = load_scene_graph_config(args.config, preset_overrides(preset_from_args(args), "scene_graph"))
     joints = load_support_joints(args.joints or cfg.support_joints or None)
     try:
         source = load_source(args.source)

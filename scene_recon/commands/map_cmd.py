@@ -10,7 +10,13 @@ import sys
 import threading
 from pathlib import Path
 
-from scene_recon.commands.common import add_data_options, data_config_from_args, print_json
+from scene_recon.commands.common import (
+    add_data_options,
+    add_preset_option,
+    data_config_from_args,
+    preset_from_args,
+    print_json,
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -67,6 +73,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="write no checkpoints (a kill then loses the run); SIGINT/SIGTERM still stop cleanly")
     p.add_argument("--seed", type=int, default=0, help="oracle noise seed")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_preset_option(p)
     add_data_options(p)
     p.set_defaults(func=run)
 
@@ -112,9 +119,9 @@ def build_segmenter(args: argparse.Namespace, segmenter: str | None = None, clas
 
 def mapper_config_from_args(args: argparse.Namespace):
     from panoptic_mapping.config import MapperConfig
-    from recon_core.config import CONFIG_DIR, load_config
+    from recon_core.config import CONFIG_DIR, load_config, preset_overrides
 
-    overrides = {"mode": args.mode}
+    overrides = preset_overrides(preset_from_args(args), "mapper", {"mode": args.mode})
     if args.voxel_size:
         overrides["tsdf.voxel_size_m"] = args.voxel_size
     if getattr(args, "max_depth", None) is not None:

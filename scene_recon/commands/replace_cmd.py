@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from scene_recon.commands.common import print_json
+from scene_recon.commands.common import add_preset_option, preset_from_args, print_json
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cad-dir", metavar="DIR",
                    help="folder of imported CAD assets (<class>/<model>/ with a URDF) added to the library")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_preset_option(p)
     p.set_defaults(func=run)
 
 
@@ -46,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
     from cad_replacement.replace_config import CadReplacementConfig
     from cad_replacement.replacer import CadReplacer
     from cad_replacement.scene_model import scene_record
+    from recon_core.config import build_config, preset_overrides
     from recon_core.contact_graph import ContactGraph
     from recon_core.entity import load_entities
     from recon_core.errors import InputError
@@ -63,7 +65,9 @@ def run(args: argparse.Namespace) -> int:
     entities = {e.id: e for e in load_entities(nodes_dir)}
     library = CadLibrary(root=args.cad_dir, seeds_per_class=args.seeds_per_class)
     check = PhysicalCheck(method=args.method)
-    replacer = CadReplacer(library, CadReplacementConfig(method=args.method), physical_check=check)
+    cad_cfg = build_config(CadReplacementConfig, {},
+                           preset_overrides(preset_from_args(args), "cad", {"method": args.method}))
+    replacer = CadReplacer(library, cad_cfg, physical_check=check)
     t0 = time.perf_counter()
     result = replacer.replace(graph, entities)
     out = Path(args.out)

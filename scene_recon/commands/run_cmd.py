@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from scene_recon.commands.common import add_data_options, data_options_argv
+from scene_recon.commands.common import add_data_options, add_preset_option, data_options_argv, preset_argv
 
 #: Exit status when a step finished but left nothing for the next one (as `map`'s).
 EXIT_EMPTY = 3
@@ -37,6 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "see `map --help`")
     p.add_argument("--method", choices=("ours", "paper"), default="ours", help="CAD replacement method")
     p.add_argument("--seeds-per-class", type=int, default=10, metavar="N", help="procedural CAD models per class")
+    add_preset_option(p)
     add_data_options(p)
     p.set_defaults(func=run)
 
@@ -50,7 +51,7 @@ def _map_argv(args: argparse.Namespace, segmenter: str, out: Path) -> list[str]:
                        ("--gravity", getattr(args, "gravity", None))):
         if value is not None:
             argv += [opt, str(value)]
-    return argv + data_options_argv(args)
+    return argv + preset_argv(args) + data_options_argv(args)
 
 
 def _no_objects(out: Path, segmenter: str, auto: bool) -> str:
@@ -78,9 +79,10 @@ def run(args: argparse.Namespace) -> int:
                                                        model=args.model, model_config=args.model_config))
     steps = [
         ("map (stage 2)", _map_argv(args, segmenter, out)),
-        ("contact graph (stage 3)", ["graph", str(out / "map"), "--out", str(out / "graph")]),
+        ("contact graph (stage 3)", ["graph", str(out / "map"), "--out", str(out / "graph"), *preset_argv(args)]),
         ("CAD replacement (stage 4)", ["replace", str(out / "graph"), "--out", str(out / "scene"),
-                                       "--method", args.method, "--seeds-per-class", str(args.seeds_per_class)]),
+                                       "--method", args.method, "--seeds-per-class", str(args.seeds_per_class),
+                                       *preset_argv(args)]),
     ]
     for k, (title, argv) in enumerate(steps, 1):
         print(f"\n== [{k}/{len(steps)}] {title}\n$ scene-recon {' '.join(argv)}", flush=True)

@@ -1,0 +1,162 @@
+"""One configuration end to end on a generated scene: stage times and every accuracy figure.
+
+The stages run through the same library calls as `scene-recon map/graph/replace` (no pictures, no
+checkpoints: they are the CLI's conveniences, not the pipeline's work), with their configs built
+from the stage schemas plus a preset's overrides (`recon_core.config.load_preset`), so a measured
+preset is exactly what `--preset NAME` runs. Scores come from `scene_recon.evaluation`: 3D PQ and
+mAP of the map, GED and oriented-box mAP of the contact graph (seen-only, as bench_graph_mapped),
+CAD pose success / Alignment Error / physics stillness of the scene (as bench_cad).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from recon_core.config import CONFIG_DIR, Preset, build_config, load_config, preset_overrides
+
+
+@dataclass
+class RunSpec:
+    """What to run: a preset (or None: the config files' defaults), extra dotted overrides per section
+    (``{"mapper": {"tsdf.voxel_size_m": 0.03}}``), the mapper mode and the CAD method."""
+
+    label: str
+    preset: Preset | None = None
+    extra: dict[str, dict[str, Any]] = field(default_factory=dict)
+    mode: str = "full"
+    method: str = "ours"
+    noise: str = "default"
+    physics: bool = True
+    seeds_per_class: int = 10
+
+    def overrides(self, section: str, explicit: dict[str, Any] | None = None) -> dict[str, Any]:
+        out = preset_overrides(self.preset, section)
+        out.update(self.extra.get(section, {}))
+        out.update(explicit or {})
+        return out
+
+
+def _quiet():
+    return contextlib.redirect_stdout(io.StringIO())
+
+
+def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = None) -> dict[str, Any]:
+    """Map, build the graph, replace and score one configuration; returns times (s) and figures."""
+    from cad_replacement.cad.library import CadLibrary
+    from cad_replacement.export import export_scene
+    from cad_replacement.physical_check import PhysicalCheck
+    from cad_replacement.replace_config import CadReplacementConfig
+    from cad_replacement.replacer import CadReplacer
+    from panoptic_mapping.config import MapperConfig
+    from panoptic_mapping.dataio import DataInputConfig
+    from panoptic_mapping.pipeline import map_recording, write_map_outputs
+    from panoptic_mapping.segmentation.config import SegmentationConfig
+    from panoptic_mapping.segmentation.factory import make_segmenter
+    from scene_graph.builder import ContactGraphBuilder
+    from scene_graph.config import load_scene_graph_config
+    from scene_graph.joints import load_support_joints
+    from scene_recon.evaluation.graph_ground_truth import ground_truth_graph, seen_entity_ids
+    from scene_recon.evaluation.graph_metrics import evaluate_graph
+    from scene_recon.evaluation.map_metrics import evaluate_panoptic_map
+    from scene_recon.evaluation.scene_eval import evaluate_scene
+    from scene_recon.synthetic.scene import GroundTruthScene
+
+    out.mkdir(parents=True, exist_ok=True)
+    mapper_cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml",
+                             spec.overrides("mapper", {"mode": spec.mode, "checkpoint.enabled": False}))
+    data_cfg = load_config(DataInputConfig, CONFIG_DIR / "data.yaml",
+                           spec.overrides("data", {"topics.labels": "/ground_truth/panoptic_labels"}))
+    graph_cfg = load_scene_graph_config(None, spec.overrides("scene_graph"))
+    cad_cfg = build_config(CadReplacementConfig, {}, spec.overrides("cad", {"method": spec.method}))
+    seg_cfg = SegmentationConfig(backend="oracle")
+    seg_cfg.oracle.ground_truth, seg_cfg.oracle.level, seg_cfg.oracle.seed = str(gt), spec.noise, 0
+    library = library or CadLibrary(seeds_per_class=spec.seeds_per_class)
+    scene = GroundTruthScene.load(gt)
+
+    # stage 1-2: segmentation + mapping (frames read, segmented, integrated; entities extracted)
+    c0, t0 = time.process_time(), time.perf_counter()
+    mapper, run = map_recording(bag, make_segmenter(seg_cfg), mapper_cfg, data_cfg, progress=False)
+    entities, summary = write_map_outputs(out / "map", mapper, run)
+    map_s, map_cpu = time.perf_counter() - t0, time.process_time() - c0
+    # stage 3: contact graph
+    c1, t1 = time.process_time(), time.perf_counter()
+    builder = ContactGraphBuilder(graph_cfg, load_support_joints(graph_cfg.support_joints or None))
+    builder.update(entities)
+    graph = builder.build(name=scene.name)
+    nodes = builder.node_entities()
+    graph_s, graph_cpu = time.perf_counter() - t1, time.process_time() - c1
+    # stage 4: CAD replacement + export
+    c2, t2 = time.process_time(), time.perf_counter()
+    check = PhysicalCheck(method=spec.method)
+    replacer = CadReplacer(library, cad_cfg, physical_check=check)
+    result = replacer.replace(graph, nodes)
+    replace_s, replace_cpu = time.perf_counter() - t2, time.process_time() - c2
+    t3 = time.perf_counter()
+    export_scene(result.scene, out / "scene")
+    export_s = time.perf_counter() - t3
+    total_s, total_cpu = time.perf_counter() - t0, time.process_time() - c0
+    # skip: the same graph again, nothing changed -> no CAD work
+    t4 = time.perf_counter()
+    again = replacer.replace(graph, nodes)
+    unchanged_s = time.perf_counter() - t4
+
+    m = evaluate_panoptic_map(entities, scene.entities)
+    seen = seen_entity_ids(scene, graph_cfg.match.seen_min_pixels)
+    g = evaluate_graph(graph, ground_truth_graph(scene), graph_cfg.match, seen)
+    gs = g.get("seen_only", g)
+    with _quiet():
+        s = evaluate_scene(result.scene, {r.name: r.to_dict() for r in result.records}, scene, library,
+                           out / "scene" if spec.physics else None, graph)
+    objects = s.get("objects", {})
+    still = [rep.get("still_fraction") for rep in s.get("physics", {}).values()
+             if rep.get("still_fraction") is not None]
+    cad_objects = sum(1 for r in result.records if r.kind == "cad")
+    return {
+        "label": spec.label, "preset": spec.preset.name if spec.preset else None, "method": spec.method,
+        "mode": spec.mode, "extra": spec.extra,
+        "times_s": {"map": round(map_s, 3), "graph": round(graph_s, 3), "replace": round(replace_s, 3),
+                    "export": round(export_s, 3), "total": round(total_s, 3),
+                    "segmentation": round(run.segmentation_s, 3), "mapper": round(run.mapper_s, 3),
+                    "replace_unchanged": round(unchanged_s, 3)},
+        # CPU seconds of this process (all its threads): far less disturbed than wall time by other work
+        # on a shared machine; the speed ratios of the report use both
+        "cpu_s": {"map": round(map_cpu, 3), "graph": round(graph_cpu, 3), "replace": round(replace_cpu, 3),
+                  "total": round(total_cpu, 3)},
+        "frames": run.frames, "keyframes": run.keyframes, "segmentation_calls": run.segmentation_calls,
+        "map_memory_mb": summary.get("map_memory_mb"), "entities": len(entities),
+        "stage_ms": summary["run"]["stage_ms"],
+        "pq": round(m.pq, 2), "map_mAP": round(m.map, 2),
+        "ged_ratio": round(float(gs["ged"]["ratio"]), 4), "box_mAP": round(float(gs["box_map_refined"]["mAP"]), 4),
+        "pose_success": objects.get("pose_success"), "ae_median_m": objects.get("ae_median"),
+        "cad_objects": cad_objects, "matched_objects": s.get("matched"),
+        "stillness": round(float(sum(still) / len(still)), 4) if still else None,
+        "unchanged_rematched": again.rematched,
+    }
+
+
+def accuracy_score(row: dict[str, Any]) -> float:
+    """One accuracy number for Pareto fronts (higher is better): the mean of PQ/100, box mAP,
+    1 - GED ratio and CAD pose success (the figures every stage is judged by, equally weighted)."""
+    parts = [row["pq"] / 100.0, row["box_mAP"], max(0.0, 1.0 - row["ged_ratio"])]
+    if row.get("pose_success") is not None:
+        parts.append(float(row["pose_success"]))
+    return round(sum(parts) / len(parts), 4)
+
+
+def pareto_front(rows: list[dict[str, Any]], time_key: str = "total", score=accuracy_score,
+                 cpu: bool = False) -> list[str]:
+    """Labels of the rows no other row beats in both time (lower) and accuracy (higher); `cpu`: CPU time."""
+    times = "cpu_s" if cpu else "times_s"
+    front = []
+    for r in rows:
+        t, a = r[times][time_key], score(r)
+        dominated = any((o[times][time_key] <= t and score(o) >= a)
+                        and (o[times][time_key] < t or score(o) > a) for o in rows if o is not r)
+        if not dominated:
+            front.append(r["label"])
+    return front

@@ -1,0 +1,166 @@
+"""Skip and scaling measurements of the full suite: an empty room, a static camera, the per-frame cost
+over a long sequence (flat as the map grows?), end-to-end time against object count.
+
+Extra scenes are generated once into the suite cache (``$SCENE_RECON_CACHE/suite/extra-*``), like the
+named suite scenes, and reused while their definition is unchanged.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scene_recon.bench.pipeline import RunSpec
+
+#: Generation definitions of the extra scenes: (objects, frames, seed).
+EMPTY = (0, 60, 707)
+OBJECT_COUNTS = (5, 20, 40, 80)
+COUNT_FRAMES = 60
+
+
+def extra_scene(name: str, objects: int, frames: int, seed: int) -> tuple[Path, Path]:
+    """(bag, ground truth) of a generated scene cached under the suite cache."""
+    from scene_recon.synthetic.generate import GenerateConfig, generate_recording, ground_truth_path
+    from scene_recon.synthetic.suite import cache_root
+
+    bag = cache_root() / f"extra-{name}-o{objects}-f{frames}-s{seed}" / name
+    gt = ground_truth_path(bag)
+    if not (gt / "generation.json").is_file():
+        generate_recording(bag, GenerateConfig(objects=objects, frames=frames, seed=seed), progress=False)
+    return bag, gt
+
+
+def _balanced(label: str, **kw: Any) -> RunSpec:
+    from recon_core.config import load_preset
+
+    return RunSpec(label, preset=load_preset("balanced"), **kw)
+
+
+def empty_room(runner: Any) -> dict[str, Any]:
+    bag, gt = extra_scene("empty", *EMPTY)
+    return runner.run_on("extra-empty", bag, gt, _balanced("empty room"))
+
+
+def _frame_times(bag: Path, gt: Path, frames: list[Any] | None = None, max_frames: int = 0,
+                 preset_name: str | None = "balanced") -> dict[str, Any]:
+    """Map a recording (or a list of frames: a stream given in memory) with a preset's mapper (None: the
+    config files' defaults) and the oracle; per-frame wall time (reading excluded for lists) and map
+    memory after each frame."""
+    from panoptic_mapping.config import MapperConfig
+    from panoptic_mapping.mapper import PanopticMapper
+    from panoptic_mapping.pipeline import masks_from_segmentation
+    from panoptic_mapping.segmentation.config import SegmentationConfig
+    from panoptic_mapping.segmentation.factory import make_segmenter
+    from recon_core.config import CONFIG_DIR, load_config, load_preset, preset_overrides
+
+    preset = load_preset(preset_name)
+    cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml",
+                      preset_overrides(preset, "mapper", {"checkpoint.enabled": False}))
+    seg_cfg = SegmentationConfig(backend="oracle")
+    seg_cfg.oracle.ground_truth, seg_cfg.oracle.level, seg_cfg.oracle.seed = str(gt), "default", 0
+    segmenter = make_segmenter(seg_cfg)
+    if frames is None:
+        from panoptic_mapping.dataio import DataInputConfig
+        from panoptic_mapping.pipeline import map_recording
+
+        marks: list[float] = []
+        mems: list[float] = []
+        mapper = PanopticMapper(cfg)
+
+        def stop() -> bool:  # called before every frame: the time between two calls is one frame's cost
+            marks.append(time.perf_counter())
+            mems.append(mapper.tsdf.memory_bytes() / 1e6)
+            return False
+
+        data = load_config(DataInputConfig, CONFIG_DIR / "data.yaml",
+                           preset_overrides(preset, "data", {"topics.labels": "/ground_truth/panoptic_labels",
+                                                             "max_frames": max_frames}))
+        _, run = map_recording(bag, segmenter, cfg, data, progress=False, mapper=mapper, stop=stop)
+        ms = list(np.diff(marks) * 1000.0)
+        return {"frame_ms": ms, "memory_mb": mems[1:], "segmentation_calls": run.segmentation_calls,
+                "frames": run.frames}
+    mapper = PanopticMapper(cfg)
+    ms, mems, calls = [], [], 0
+    for frame in frames:
+        t0 = time.perf_counter()
+        masks = None
+        if mapper.is_keyframe(frame):
+            mapper.mark_keyframe(frame)
+            masks = masks_from_segmentation(segmenter.segment_frame(frame))
+            calls += 1
+        mapper.integrate(frame, masks)
+        ms.append((time.perf_counter() - t0) * 1000.0)
+        mems.append(mapper.tsdf.memory_bytes() / 1e6)
+    return {"frame_ms": ms, "memory_mb": mems, "segmentation_calls": calls, "frames": len(frames)}
+
+
+def static_camera(runner: Any, n: int = 120) -> dict[str, Any]:
+    """The first `n` frames of bench-small against its first frame repeated `n` times (same stamps)."""
+    from panoptic_mapping.dataio import DataInputConfig
+    from panoptic_mapping.dataio.registry import open_dataset
+    from recon_core.config import CONFIG_DIR, load_config
+    from scene_recon.synthetic.suite import suite_scene
+
+    bag, gt = suite_scene("bench-small", progress=False)
+    runner.progress("         static camera vs moving camera ...")
+    data = load_config(DataInputConfig, CONFIG_DIR / "data.yaml", {"topics.labels": "/ground_truth/panoptic_labels"})
+    with open_dataset(bag, data) as loader:
+        moving = []
+        for f in loader:
+            moving.append(f)
+            if len(moving) >= n:
+                break
+    static = [replace(moving[0], timestamp_ns=f.timestamp_ns) for f in moving]
+    lines, data = [], {}
+    for preset in (None, "balanced"):
+        name = preset or "defaults (keyframe gating on)"
+        mv, st = _frame_times(bag, gt, moving, preset_name=preset), _frame_times(bag, gt, static, preset_name=preset)
+        mv_ms, st_ms = float(np.mean(mv["frame_ms"])), float(np.mean(st["frame_ms"]))
+        lines += [f"{name}, moving camera: {mv_ms:.1f} ms/frame, {mv['segmentation_calls']} segmentation calls, map "
+                  f"{mv['memory_mb'][-1]:.1f} MB",
+                  f"{name}, static camera: {st_ms:.1f} ms/frame ({st_ms / mv_ms:.2f}x), {st['segmentation_calls']} "
+                  f"segmentation calls, map {st['memory_mb'][-1]:.1f} MB"]
+        data[name] = {"moving_ms": mv_ms, "static_ms": st_ms, "moving_segmentation_calls": mv["segmentation_calls"],
+                      "static_segmentation_calls": st["segmentation_calls"]}
+    return {"text": f"{n} frames of bench-small against its first frame repeated {n} times (a camera standing "
+                    "still), with the defaults (keyframe gating: only keyframes are segmented) and with the "
+                    "balanced preset (which segments every frame it reads).", "lines": lines, **data}
+
+
+def per_frame_cost(runner: Any, frames: int) -> dict[str, Any]:
+    """Per-frame time and map memory over a long recording revisiting the same room."""
+    runner.progress(f"         long sequence: {frames} frames (generated once, then cached) ...")
+    bag, gt = extra_scene("long", 12, frames, 808)
+    res = _frame_times(bag, gt, preset_name=None)  # every frame read (no stride), keyframe gating as by default
+    ms = np.asarray(res["frame_ms"])
+    k = min(500, len(ms) // 2)
+    first, last = float(ms[:k].mean()), float(ms[-k:].mean())
+    ratio = last / first
+    lines = [f"{res['frames']} frames: first {k} frames {first:.1f} ms/frame, last {k} {last:.1f} ms/frame: "
+             f"ratio {ratio:.2f} ({'within' if abs(ratio - 1) <= 0.2 else 'NOT within'} 20 %)",
+             f"map memory {res['memory_mb'][k - 1]:.1f} MB after {k} frames, {res['memory_mb'][-1]:.1f} MB at the end; "
+             f"{res['segmentation_calls']} segmentation calls"]
+    return {"text": "Config defaults (every frame read, keyframes segmented), oracle segmentation included; the "
+                    "camera loops the same room, so the map stops growing once the room is seen.", "lines": lines,
+            "frame_index": list(range(len(ms))), "frame_ms": [round(float(x), 2) for x in ms],
+            "memory_mb": [round(float(x), 2) for x in res["memory_mb"]], "first_ms": first, "last_ms": last,
+            "ratio_last_first": ratio, "frames": res["frames"]}
+
+
+def object_count_scaling(runner: Any) -> dict[str, Any]:
+    rows = []
+    for count in OBJECT_COUNTS:
+        runner.progress(f"         {count} objects ({COUNT_FRAMES} frames) ...")
+        bag, gt = extra_scene("objects", count, COUNT_FRAMES, 900 + count)
+        rows.append(runner.run_on(f"extra-objects-{count}", bag, gt, _balanced(f"{count} objects", physics=False)))
+    total = [r["times_s"]["total"] for r in rows]
+    lines = [f"{c} objects: {r['times_s']['total']:.1f} s end to end (map {r['times_s']['map']:.1f}, graph "
+             f"{r['times_s']['graph']:.2f}, replace {r['times_s']['replace']:.1f}; {r['cad_objects']} CAD objects)"
+             for c, r in zip(OBJECT_COUNTS, rows, strict=True)]
+    return {"text": f"Balanced preset on generated rooms of {COUNT_FRAMES} frames with 5-80 objects (physics "
+                    "check off).", "rows": rows, "lines": lines, "objects": list(OBJECT_COUNTS), "total_s": total,
+            "map_s": [r["times_s"]["map"] for r in rows], "replace_s": [r["times_s"]["replace"] for r in rows]}
