@@ -1,7 +1,11 @@
 """`cad_replacer`: stage 4 (CAD replacement) as a ROS 2 node over ``cad_replacement``.
 
-Inputs: ``contact_graph`` (scene_recon_interfaces/ContactGraph, latched) and ``panoptic_entities``
-(PanopticEntityArray: the geometry behind the nodes). After every graph update the replacer
+Inputs: ``contact_graph_json`` (std_msgs/String, latched: the graph in the JSON of `recon_core.contact_graph`,
+lossless — unrefined boxes, plane areas, contact ratios —, the very file `scene-recon replace` reads),
+or else ``contact_graph`` (scene_recon_interfaces/ContactGraph, latched; used until a JSON graph has
+been seen, for publishers that only have the typed message), and ``contact_graph_entities``
+(PanopticEntityArray: the geometry behind the nodes as the contact-graph builder left it — the same
+geometry `scene-recon replace` reads from the `graph` command's `nodes/` folder). After every graph update the replacer
 re-matches only the entities whose revision, parent or box changed and republishes:
 
 * ``robot_description`` (std_msgs/String, transient-local): the scene URDF, root ``map``, link meshes
@@ -50,6 +54,7 @@ from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replacer import CadReplacer
 from cad_replacement.scene_model import ReplacedScene
 from recon_core.config import Settings, setting
+from recon_core.contact_graph import ContactGraph
 from recon_core.entity import Entity
 from recon_core.errors import EntityError
 from recon_core.io import write_text_atomic
@@ -59,7 +64,7 @@ from ros_nodes.conversions import make_transform_stamped, matrix_to_transform, n
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, msg_to_entity
 from ros_nodes.parameters import declare_config
 from ros_nodes.qos import ENTITIES, LATCHED, TF_DYNAMIC, TF_STATIC
-from ros_nodes.runner import run_node
+from ros_nodes.runner import run_node, steady_timer
 
 ACTION_KIND = {ApplySceneAction.Request.SET_JOINT: "set_joint", ApplySceneAction.Request.MOVE_OBJECT: "move",
                ApplySceneAction.Request.REPARENT: "reparent"}
@@ -69,8 +74,10 @@ ACTION_KIND = {ApplySceneAction.Request.SET_JOINT: "set_joint", ApplySceneAction
 class CadReplacerNodeConfig(Settings):
     """ROS-side settings of the CAD replacer; the replacement itself is `CadReplacementConfig` (``replace.``)."""
 
-    graph_topic: str = setting("contact_graph", doc="ContactGraph input (latched)")
-    entities_topic: str = setting("panoptic_entities", doc="PanopticEntityArray input (node geometry)")
+    graph_topic: str = setting("contact_graph", doc="ContactGraph input (latched; the JSON one wins)")
+    graph_json_topic: str = setting("contact_graph_json", doc="contact graph as JSON (std_msgs/String, latched)")
+    entities_topic: str = setting("contact_graph_entities",
+                                  doc="PanopticEntityArray input: node geometry (the contact graph node's)")
     description_topic: str = setting("robot_description", doc="URDF output (std_msgs/String, latched)")
     joint_states_topic: str = setting("joint_states", doc="JointState output")
     markers_topic: str = setting("cad_markers", doc="MarkerArray output (latched)")
@@ -99,7 +106,7 @@ class CadReplacerNode(Node):
         self.joint_names: list[str] = []
         self.records: list[dict] = []
         self.entities: dict[int, Entity] = {}
-        self.graph_msg: ContactGraphMsg | None = None
+        self.graph_msg: ContactGraphMsg | str | None = None  # the typed message, or the JSON text
         self._dirty = False
         self._last = -float("inf")
         self.counters = {"graphs": 0, "replacements": 0, "rematched": 0, "actions": 0, "refused": 0,
@@ -115,10 +122,12 @@ class CadReplacerNode(Node):
         self.create_subscription(PanopticEntityArray, s.entities_topic, self._on_entities, ENTITIES,
                                  callback_group=io)
         self.create_subscription(ContactGraphMsg, s.graph_topic, self._on_graph, LATCHED, callback_group=io)
+        self.create_subscription(String, s.graph_json_topic, self._on_graph_json, LATCHED, callback_group=io)
+        self._json_seen = False
         self.create_service(ApplySceneAction, "apply_scene_action", self._srv_action, callback_group=io)
         self.create_service(Trigger, "export_scene", self._srv_export, callback_group=io)
-        self.create_timer(0.05, self._maybe_replace, callback_group=work)
-        self.create_timer(s.tf_period_s, self._publish_dynamic, callback_group=io)
+        steady_timer(self, 0.05, self._maybe_replace, work)
+        steady_timer(self, s.tf_period_s, self._publish_dynamic, io)
 
     # ------------------------------------------------------------------ inputs
     def _on_entities(self, msg: PanopticEntityArray) -> None:
@@ -140,7 +149,16 @@ class CadReplacerNode(Node):
 
     def _on_graph(self, msg: ContactGraphMsg) -> None:
         with self.lock:
+            if self._json_seen:  # the same graph comes as JSON too, without the typed message's losses
+                return
             self.graph_msg = msg
+            self._dirty = True
+        self.counters["graphs"] += 1
+
+    def _on_graph_json(self, msg: String) -> None:
+        with self.lock:
+            self._json_seen = True
+            self.graph_msg = msg.data
             self._dirty = True
         self.counters["graphs"] += 1
 
@@ -151,7 +169,8 @@ class CadReplacerNode(Node):
                 return
             self._dirty = False
             self._last = time.monotonic()
-            graph = graph_from_msg(self.graph_msg)
+            graph = (ContactGraph.from_dict(json.loads(self.graph_msg)) if isinstance(self.graph_msg, str)
+                     else graph_from_msg(self.graph_msg))
             entities = dict(self.entities)
             revision = self.scene.revision + 1 if self.scene is not None else 1
         t0 = time.perf_counter()

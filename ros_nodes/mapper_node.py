@@ -8,7 +8,8 @@ Outputs: `panoptic_entities` (PanopticEntityArray, transient-local: a consumer s
 later gets the current entities at once) and `panoptic_map_markers` (MarkerArray) at
 `publish_period_s` when the map changed; `mapper_status` (std_msgs/String, JSON, transient-local,
 every `status_period_s`): frames integrated, frames dropped (backlog) and every other counter,
-queue length, checkpoints. Services save_map / load_map / reset_map / extract_entities.
+queue length, keyframes waiting for labels, whether changes await publication, checkpoints.
+Services save_map / load_map / reset_map / extract_entities.
 
 Under load: the services run on a callback group of their own and take the map's lock between two
 frames (the integration loop steps aside while a service waits), so they answer within about one
@@ -66,7 +67,7 @@ from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, ima
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, map_markers
 from ros_nodes.parameters import declare_config, declare_config_file
 from ros_nodes.qos import ENTITIES, SENSOR_RELIABLE, STATUS
-from ros_nodes.runner import run_node
+from ros_nodes.runner import run_node, steady_timer
 from ros_nodes.tf_listener import TFListener
 
 
@@ -92,6 +93,17 @@ class MapperNodeConfig(Settings):
     sync_slop_s: float = setting(0.02, min=0.0, doc="max |t_color - t_depth| (s) of an image pair")
     segmentation_timeout_s: float = setting(
         3.0, min=0.0, doc="a keyframe whose labels take longer (s) integrates without them")
+    #: Keyframes integrate when their labels arrive; meanwhile later frames integrate (a slow service never
+    #: holds the camera up). With `in_order`, later frames wait for the keyframe instead (at most
+    #: `segmentation_timeout_s`): frames integrate in recorded order, as `scene-recon map` integrates
+    #: them, so a played bag gives the offline map. For recordings; live cameras keep the default.
+    in_order: bool = setting(False, doc="integrate frames strictly in order (a keyframe holds later frames "
+                             "until its labels arrive or time out)")
+    #: Started together (a launch file, the runner), the service may be discovered a moment after the
+    #: first frames: until it has been seen once, a keyframe waits this long for it instead of being
+    #: mapped without labels. After that, a missing service never holds integration up.
+    segmentation_startup_wait_s: float = setting(
+        5.0, min=0.0, doc="until the service was first seen, a keyframe waits this long (s) for it")
     tf_wait_s: float = setting(0.5, min=0.0, doc="how long (s) a frame waits for its pose and camera info")
     publish_period_s: float = setting(2.0, min=0.0, min_exclusive=True,
                                       doc="entities and markers are published at most this often (s)")
@@ -115,6 +127,9 @@ class MapperNode(Node):
         self.sync_slop_ns = int(settings.sync_slop_s * 1e9)
         self.use_segmentation = settings.use_segmentation
         self.seg_timeout_s = settings.segmentation_timeout_s
+        self.seg_startup_wait_s = settings.segmentation_startup_wait_s
+        self.in_order = settings.in_order
+        self._seg_seen = False
         self.tf_wait_s = settings.tf_wait_s
         self.publish_period_s = settings.publish_period_s
         self.include_meshes = settings.publish_meshes
@@ -157,6 +172,7 @@ class MapperNode(Node):
         self.create_service(ResetMap, "reset_map", self._srv_reset, callback_group=services)
         self.create_service(ExtractEntities, "extract_entities", self._srv_extract, callback_group=services)
         self.colors: collections.deque[Image] = collections.deque(maxlen=30)
+        self.depths: collections.deque[Image] = collections.deque()  # not paired yet (color came late)
         self.info: CameraInfo | None = None
         self.queue: collections.deque[tuple[Image, Image, float]] = collections.deque()
         self.pending: list[_Pending] = []
@@ -165,9 +181,9 @@ class MapperNode(Node):
         self._published_revision: dict[int, int] = {}
         # entity messages by (id, revision, with mesh): unchanged entities are not converted again
         self._msg_cache: dict[tuple[int, int, bool], object] = {}
-        self.create_timer(0.01, self._process, callback_group=self.map_group)
-        self.create_timer(self.publish_period_s, self._publish, callback_group=self.map_group)
-        self.create_timer(settings.status_period_s, self._report, callback_group=inputs)
+        steady_timer(self, 0.01, self._process, self.map_group)
+        steady_timer(self, self.publish_period_s, self._publish, self.map_group)
+        steady_timer(self, settings.status_period_s, self._report, inputs)
         self.get_logger().info(f"data root {self.data_root}; checkpoints "
                                + (f"every {self.config.checkpoint.every_n_frames} frames / "
                                   f"{self.config.checkpoint.every_s:g} s" if self.checkpointer else "disabled"))
@@ -215,14 +231,29 @@ class MapperNode(Node):
 
     def _on_color(self, msg: Image) -> None:
         self.colors.append(msg)
+        # the two streams are separate topics: a depth image may have come before its color image
+        t = stamp_to_ns(msg.header.stamp)
+        waiting = [d for d in self.depths if abs(stamp_to_ns(d.header.stamp) - t) <= self.sync_slop_ns]
+        for d in waiting:
+            self.depths.remove(d)
+            self._enqueue(msg, d)
 
     def _on_depth(self, msg: Image) -> None:
         t = stamp_to_ns(msg.header.stamp)
         best = min(self.colors, key=lambda c: abs(stamp_to_ns(c.header.stamp) - t), default=None)
         if best is None or abs(stamp_to_ns(best.header.stamp) - t) > self.sync_slop_ns:
-            self.counters["unpaired_depth"] += 1
+            self.depths.append(msg)
+            while len(self.depths) > self.UNPAIRED_DEPTHS:
+                self.depths.popleft()
+                self.counters["unpaired_depth"] += 1
             return
-        self.queue.append((best, msg, time.monotonic()))
+        self._enqueue(best, msg)
+
+    #: Depth images kept while their color image may still arrive.
+    UNPAIRED_DEPTHS = 10
+
+    def _enqueue(self, color: Image, depth: Image) -> None:
+        self.queue.append((color, depth, time.monotonic()))
         while len(self.queue) > self.max_queue:  # cannot keep up: drop the oldest, keep the newest
             self.queue.popleft()
             self.counters["dropped_backlog"] += 1
@@ -255,7 +286,7 @@ class MapperNode(Node):
 
     def _process_locked(self) -> None:
         self._collect_segmentations()
-        if not self.queue:
+        if not self.queue or (self.in_order and self.pending):
             return
         color_msg, depth_msg, arrived = self.queue[0]
         # waiting is measured from the frame's arrival, not its stamp: replayed recordings carry old stamps
@@ -267,6 +298,9 @@ class MapperNode(Node):
             self.counters["no_camera_info"] += 1
             self.get_logger().warning("frame skipped: no camera info received yet", throttle_duration_sec=5.0)
             return
+        if (self.use_segmentation and not self._seg_seen and waited < self.seg_startup_wait_s
+                and not self.seg_client.service_is_ready()):
+            return  # the service is starting beside us: keep the frame at the head of the queue
         try:
             frame = self._make_frame(color_msg, depth_msg)
         except TransformLookupError as exc:
@@ -283,6 +317,7 @@ class MapperNode(Node):
             if not self.use_segmentation:
                 self.mapper.mark_keyframe(frame)
             elif self.seg_client.service_is_ready():
+                self._seg_seen = True
                 self.mapper.mark_keyframe(frame)
                 req = SegmentImage.Request(color=color_msg, has_depth=True, depth=depth_msg)
                 self.pending.append(_Pending(frame, color_msg, depth_msg, self.seg_client.call_async(req),
@@ -379,6 +414,7 @@ class MapperNode(Node):
             self.get_logger().error(f"entity extraction failed: {exc}", throttle_duration_sec=5.0)
             return
         self.pub_entities.publish(msg)
+        self.counters["publications"] += 1
         self.pub_markers.publish(map_markers(ents, self.map_frame, msg.header.stamp))
 
     def status(self) -> dict:
@@ -386,6 +422,9 @@ class MapperNode(Node):
         cp = self.checkpointer
         return {"frames_integrated": self.mapper.frames_integrated, "keyframes": self.mapper.keyframes,
                 "dropped_frames": self.counters["dropped_backlog"], "queue": len(self.queue),
+                # idle = nothing queued, no keyframe waiting for labels, every change published
+                "pending_segmentations": len(self.pending), "unpublished_changes": bool(self._changed),
+                "entity_publications": self.counters["publications"],
                 "counters": dict(self.counters), "checkpoints": cp.saved if cp else 0,
                 "last_checkpoint": str(cp.last_path) if cp and cp.last_path else "",
                 "last_checkpoint_s": round(cp.last_cost_s, 3) if cp else 0.0}

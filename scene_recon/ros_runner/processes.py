@@ -1,0 +1,116 @@
+"""Child processes of the runner: one per node, logs forwarded line by line with a `[name]` prefix.
+
+Each node runs in a session of its own, so a Ctrl-C typed in the terminal reaches the runner only:
+the runner first asks the CAD replacer to export the scene, then stops the nodes itself, player
+first (no new frames), each with SIGINT (the nodes' orderly shutdown: the mapper's last checkpoint),
+and only a node that does not exit in time is killed. The caller's environment is passed through
+unchanged (ROS_DOMAIN_ID, ROS_AUTOMATIC_DISCOVERY_RANGE, RMW settings are the user's to choose).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TextIO
+
+import yaml
+
+from recon_core.ros_graph import NodeSpec
+
+
+@dataclass
+class Child:
+    """A running node process and where its output goes."""
+
+    spec: NodeSpec
+    proc: subprocess.Popen
+    log_path: Path
+    reader: threading.Thread
+    lines: list[str] = field(default_factory=list)  # the last lines, for the failure report
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def poll(self) -> int | None:
+        return self.proc.poll()
+
+
+class LogSink:
+    """Prefixed, line-atomic output of every child on one stream (and each child's own log file)."""
+
+    def __init__(self, stream: TextIO | None = None, quiet: bool = False) -> None:
+        self.stream = stream or sys.stdout
+        self.quiet = quiet
+        self._lock = threading.Lock()
+        self.width = 20
+
+    def line(self, prefix: str, text: str) -> None:
+        if self.quiet:
+            return
+        with self._lock:
+            self.stream.write(f"[{prefix:<{self.width}}] {text}\n")
+            self.stream.flush()
+
+
+def write_params(spec: NodeSpec, folder: Path) -> Path:
+    """The node's parameter file (the form launch_ros writes too)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{spec.name}.yaml"
+    path.write_text(yaml.safe_dump(spec.params_yaml(), sort_keys=False), encoding="utf-8")
+    return path
+
+
+def _forward(child_name: str, stream: TextIO, log: TextIO, sink: LogSink, keep: list[str]) -> None:
+    for raw in stream:
+        text = raw.rstrip("\n")
+        log.write(raw)
+        log.flush()
+        keep.append(text)
+        del keep[:-50]
+        sink.line(child_name, text)
+    log.close()
+
+
+def start_child(spec: NodeSpec, run_dir: Path, sink: LogSink, env: dict[str, str] | None = None) -> Child:
+    """Start `python -m <module> --ros-args ...` for `spec`; its parameters go through a params file."""
+    params = write_params(spec, run_dir / "params")
+    logs = run_dir / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    log_path = logs / f"{spec.name}.log"
+    argv = [sys.executable, "-m", spec.module, *spec.ros_args(params)]
+    proc = subprocess.Popen(argv, env=env if env is not None else os.environ.copy(), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True, bufsize=1,
+                            start_new_session=True)
+    keep: list[str] = []
+    log = log_path.open("w", encoding="utf-8")
+    log.write(f"$ {' '.join(argv)}\n")
+    reader = threading.Thread(target=_forward, args=(spec.name, proc.stdout, log, sink, keep),
+                              name=f"log-{spec.name}", daemon=True)
+    reader.start()
+    return Child(spec, proc, log_path, reader, keep)
+
+
+def stop_children(children: list[Child], timeout_s: float = 30.0) -> dict[str, int]:
+    """SIGINT every child still running (in the given order), then wait for each; a child that does not
+    exit within `timeout_s` is killed. Returns the exit codes by node name."""
+    for child in children:
+        if child.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                child.proc.send_signal(signal.SIGINT)
+    codes: dict[str, int] = {}
+    for child in children:
+        try:
+            child.proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            child.proc.kill()
+            child.proc.wait()
+        child.reader.join(timeout=5)
+        codes[child.name] = int(child.proc.returncode)
+    return codes
