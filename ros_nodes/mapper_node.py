@@ -66,8 +66,9 @@ from recon_core.paths import confined_path
 from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, map_markers
 from ros_nodes.parameters import declare_config, declare_config_file
-from ros_nodes.qos import ENTITIES, SENSOR_RELIABLE, STATUS
+from ros_nodes.qos import ENTITIES, STATUS
 from ros_nodes.runner import run_node, steady_timer
+from ros_nodes.sensor_subscription import SensorSubscription
 from ros_nodes.tf_listener import TFListener
 
 
@@ -157,12 +158,10 @@ class MapperNode(Node):
         self.map_group = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
         self.tf = TFListener(self, callback_group=MutuallyExclusiveCallbackGroup())
-        self.create_subscription(Image, settings.color_topic, self._on_color,
-                                 SENSOR_RELIABLE, callback_group=inputs)
-        self.create_subscription(Image, settings.depth_topic, self._on_depth,
-                                 SENSOR_RELIABLE, callback_group=inputs)
-        self.create_subscription(CameraInfo, settings.camera_info_topic, self._on_info, SENSOR_RELIABLE,
-                                 callback_group=inputs)
+        # camera topics: RELIABLE or BEST_EFFORT, whatever the driver offers (ros_nodes.sensor_subscription)
+        self.sensor_subs = [SensorSubscription(self, Image, settings.color_topic, self._on_color, inputs),
+                            SensorSubscription(self, Image, settings.depth_topic, self._on_depth, inputs),
+                            SensorSubscription(self, CameraInfo, settings.camera_info_topic, self._on_info, inputs)]
         self.seg_client = self.create_client(SegmentImage, settings.segmentation_service)
         self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", ENTITIES)
         self.pub_markers = self.create_publisher(MarkerArray, "panoptic_map_markers", 1)
@@ -340,6 +339,7 @@ class MapperNode(Node):
                     res = item.future.result()
                     if res is not None and res.success:
                         masks = self._masks(res)
+                        self.counters["segmented_keyframes"] += 1
                     else:
                         self.counters["segmentation_failed"] += 1
                         self.get_logger().warning(f"segmentation failed: {getattr(res, 'message', '')}",
