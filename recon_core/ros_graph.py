@@ -94,6 +94,14 @@ class NodeSpec:
     module: str  # `python -m <module>`, for the runner
     parameters: dict[str, Any] = field(default_factory=dict)
     remappings: list[tuple[str, str]] = field(default_factory=list)
+    #: Parameters on top of `parameters` when the runner restarts the node after it died (the mapper
+    #: resumes from its newest checkpoint); the other nodes rejoin from the transient-local topics.
+    respawn_parameters: dict[str, Any] = field(default_factory=dict)
+
+    def respawned(self) -> NodeSpec:
+        """The spec a restarted node runs with."""
+        return NodeSpec(self.name, self.executable, self.module, {**self.parameters, **self.respawn_parameters},
+                        list(self.remappings), dict(self.respawn_parameters))
 
     def ros_args(self, params_file: str | Path | None = None) -> list[str]:
         """The `--ros-args` part of a command line starting this node (parameters from `params_file`,
@@ -145,7 +153,7 @@ def graph_nodes(opts: GraphOptions) -> list[NodeSpec]:
         "status_period_s": float(opts.status_period_s),
         # a recording is integrated in its recorded order, as `scene-recon run` does: the same map
         "in_order": bool(opts.bag),
-    })
+    }, respawn_parameters={"resume": True})
     graph = NodeSpec("contact_graph", "contact_graph_node", "ros_nodes.contact_graph_node", {
         **common, **config_file("contact_graph"), "mesh_root": map_root,
     })

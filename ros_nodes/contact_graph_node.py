@@ -216,6 +216,12 @@ class ContactGraphNodeConfig(Settings):
     snapshot: bool = setting(False, doc="an entity missing from a message is dropped too, not only removed_ids")
     mesh_root: str = setting(DEFAULT_MAP_ROOT, doc="entity meshes given by mesh_uri are read only under this folder "
                              "(the mapper's data_root); empty: inline meshes only")
+    #: The builder updates incrementally (only changed entities are re-initialised); some of its steps
+    #: (layout splitting, fragment merging) keep state from earlier updates, so a graph built update by
+    #: update can differ from one built at once (`scene-recon graph`). Once no entities came for this long,
+    #: the graph is built once more from scratch and published if it differs.
+    final_rebuild_s: float = setting(1.0, min=0.0, doc="rebuild from scratch after this long (s) without new "
+                                     "entities (0: never)")
 
 
 class ContactGraphNode(Node):
@@ -228,6 +234,11 @@ class ContactGraphNode(Node):
         self.snapshot = settings.snapshot
         self.mesh_root = Path(settings.mesh_root).expanduser().resolve() if settings.mesh_root else None
         self.builder = ContactGraphBuilder(cfg, joints)
+        self._cfg, self._joints = cfg, joints
+        self.final_rebuild_s = settings.final_rebuild_s
+        self._incremental = False  # built update by update since the last build from scratch
+        self._last_message = time.monotonic()
+        self._last_graph_json = ""
         self.pub_graph = self.create_publisher(ContactGraphMsg, settings.graph_topic, LATCHED)
         self.pub_markers = self.create_publisher(MarkerArray, settings.markers_topic, LATCHED)
         self.pub_graph_json = self.create_publisher(String, settings.graph_json_topic, LATCHED)
@@ -244,6 +255,7 @@ class ContactGraphNode(Node):
 
     def _on_entities(self, msg: PanopticEntityArray) -> None:
         self.counters["messages"] += 1
+        self._last_message = time.monotonic()
         self.builder.remove(int(i) for i in msg.removed_ids)
         if self.snapshot:
             present = {int(e.id) for e in msg.entities}
@@ -270,12 +282,36 @@ class ContactGraphNode(Node):
         self._maybe_build()
 
     def _maybe_build(self) -> None:
+        if (not self._dirty and self._incremental and self.final_rebuild_s > 0 and self._header is not None
+                and time.monotonic() - self._last_message >= self.final_rebuild_s):
+            self._rebuild_from_scratch()
         if not self._dirty or self._header is None or time.monotonic() - self._last_build < self.min_period_s:
             return
         self._dirty = False
         self._last_build = time.monotonic()
         t0 = time.perf_counter()
         graph = self.builder.build(frame_id=self._header.frame_id or "map")
+        self._incremental = True
+        self._publish(graph, t0)
+
+    def _rebuild_from_scratch(self) -> None:
+        """Build the graph from all current entities with a fresh builder (= `scene-recon graph`)."""
+        assert self._header is not None
+        entities = [self.builder.features(i).entity for i in self.builder.ids]
+        builder = ContactGraphBuilder(self._cfg, self._joints)
+        builder.update(entities)
+        self.builder = builder
+        self._incremental = False
+        t0 = time.perf_counter()
+        graph = builder.build(frame_id=self._header.frame_id or "map")
+        if json.dumps(_without_stats(graph.to_dict())) != self._last_graph_json:
+            self.counters["final_rebuilds_changed"] = self.counters.get("final_rebuilds_changed", 0) + 1
+            self.get_logger().info("rebuilt from scratch: the graph differs from the incremental one; publishing it")
+            self._publish(graph, t0)
+
+    def _publish(self, graph: ContactGraph, t0: float) -> None:
+        assert self._header is not None
+        self._last_graph_json = json.dumps(_without_stats(graph.to_dict()))
         # the node geometry first: a consumer that reacts to the graph finds it already there
         self.pub_node_entities.publish(self._node_entities_msg(self._header))
         self.pub_graph_json.publish(String(data=json.dumps(graph.to_dict())))
@@ -304,6 +340,12 @@ class ContactGraphNode(Node):
         removed = sorted(i for i in self._node_msgs if i not in msgs)
         self._node_msgs = msgs
         return PanopticEntityArray(header=header, entities=[m for _, _, m in msgs.values()], removed_ids=removed)
+
+
+
+def _without_stats(d: dict) -> dict:
+    """A graph's dict without its timings (two builds of one graph differ only there)."""
+    return {k: v for k, v in d.items() if k != "stats"}
 
 
 def main(args: list[str] | None = None) -> int:

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import hashlib
 import json
 import sys
 import threading
@@ -66,7 +67,7 @@ from recon_core.paths import confined_path
 from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, map_markers
 from ros_nodes.parameters import declare_config, declare_config_file
-from ros_nodes.qos import ENTITIES, STATUS
+from ros_nodes.qos import ENTITIES, RECORDING_DEPTH, STATUS
 from ros_nodes.runner import run_node, steady_timer
 from ros_nodes.sensor_subscription import SensorSubscription
 from ros_nodes.tf_listener import TFListener
@@ -145,6 +146,7 @@ class MapperNode(Node):
         self._waiting_lock = threading.Lock()
         self.last_service_wait_s = 0.0
         self.checkpointer: Checkpointer | None = None
+        self.checkpoint_frames = 0
         self._checkpoint_thread: threading.Thread | None = None
         if self.config.checkpoint.enabled:
             store = CheckpointStore(self.data_root / CHECKPOINT_DIR, keep=self.config.checkpoint.keep)
@@ -159,9 +161,12 @@ class MapperNode(Node):
         services = MutuallyExclusiveCallbackGroup()
         self.tf = TFListener(self, callback_group=MutuallyExclusiveCallbackGroup())
         # camera topics: RELIABLE or BEST_EFFORT, whatever the driver offers (ros_nodes.sensor_subscription)
-        self.sensor_subs = [SensorSubscription(self, Image, settings.color_topic, self._on_color, inputs),
-                            SensorSubscription(self, Image, settings.depth_topic, self._on_depth, inputs),
-                            SensorSubscription(self, CameraInfo, settings.camera_info_topic, self._on_info, inputs)]
+        # (a recording, in_order: a deep history, so a frame the mapper is slow to take is not overwritten)
+        depth = RECORDING_DEPTH if self.in_order else 0
+        self.sensor_subs = [SensorSubscription(self, Image, settings.color_topic, self._on_color, inputs, depth=depth),
+                            SensorSubscription(self, Image, settings.depth_topic, self._on_depth, inputs, depth=depth),
+                            SensorSubscription(self, CameraInfo, settings.camera_info_topic, self._on_info, inputs,
+                                               depth=depth)]
         self.seg_client = self.create_client(SegmentImage, settings.segmentation_service)
         self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", ENTITIES)
         self.pub_markers = self.create_publisher(MarkerArray, "panoptic_map_markers", 1)
@@ -177,11 +182,14 @@ class MapperNode(Node):
         self.pending: list[_Pending] = []
         self.counters = collections.Counter()
         self._changed = self.mapper.frames_integrated > 0  # a resumed map is published at once
-        self._published_revision: dict[int, int] = {}
+        self._next_publish = 0.0
+        self._published_revision: dict[int, tuple[str, int]] = {}  # id -> (mesh digest, revision published)
         # entity messages by (id, revision, with mesh): unchanged entities are not converted again
         self._msg_cache: dict[tuple[int, int, bool], object] = {}
         steady_timer(self, 0.01, self._process, self.map_group)
-        steady_timer(self, self.publish_period_s, self._publish, self.map_group)
+        # publishing converts meshes to messages outside the map's lock, on a group of its own: frames keep
+        # integrating meanwhile (the extraction itself holds the lock)
+        steady_timer(self, self.publish_period_s, self._publish, MutuallyExclusiveCallbackGroup())
         steady_timer(self, settings.status_period_s, self._report, inputs)
         self.get_logger().info(f"data root {self.data_root}; checkpoints "
                                + (f"every {self.config.checkpoint.every_n_frames} frames / "
@@ -199,6 +207,7 @@ class MapperNode(Node):
         for why in ckpt.skipped:
             self.get_logger().warning(f"resume: {why}; using the older checkpoint {ckpt.path}")
         self.mapper = ckpt.mapper
+        self.checkpoint_frames = self.mapper.frames_integrated
         assert self.checkpointer is not None
         self.checkpointer.start(self.mapper.frames_integrated)
         self.get_logger().info(f"resumed from checkpoint {ckpt.path} ({self.mapper.frames_integrated} frames)")
@@ -383,38 +392,64 @@ class MapperNode(Node):
             self.get_logger().error(f"frame not integrated: {exc}", throttle_duration_sec=5.0)
 
     # ------------------------------------------------------------------ outputs
-    def _entities_msg(self, ents: list, include_meshes: bool, publishing: bool) -> PanopticEntityArray:
+    def _entities_msg(self, ents: list, include_meshes: bool, publishing: bool, frames: int) -> PanopticEntityArray:
         """The message of extracted entities; runs outside the map's lock (the mesh conversion is slow).
 
+        An entity's published revision changes whenever its mesh does: the mapper's own revision follows
+        label updates only, while frames between keyframes grow the geometry too, and consumers (the
+        contact graph, the CAD replacer) skip an entity whose revision they have seen. A changed entity
+        gets `frames` (frames integrated at extraction) as its revision: that grows across a restart from
+        a checkpoint too, so a restarted mapper never reuses a revision for another mesh.
         Only the publisher (one thread) updates the conversion cache and the published revisions."""
         msg = PanopticEntityArray()
         msg.header.frame_id = self.map_frame
         msg.header.stamp = self.get_clock().now().to_msg()
         old, cache = self._msg_cache, {}
+        revisions: dict[int, tuple[str, int]] = {}
         for e in ents:
-            key = (int(e.id), int(e.revision), include_meshes)
-            cache[key] = old.get(key) or entity_to_msg(e, include_meshes)
+            digest = _mesh_digest(e)
+            prev = self._published_revision.get(int(e.id))
+            if prev is not None and prev[0] == digest:
+                revision = prev[1]
+            else:
+                revision = max(int(e.revision), int(frames), prev[1] + 1 if prev is not None else 0)
+            revisions[int(e.id)] = (digest, revision)
+            key = (int(e.id), revision, include_meshes)
+            entry = old.get(key)
+            if entry is None:
+                entry = entity_to_msg(e, include_meshes)
+                entry.revision = revision
+            cache[key] = entry
         msg.entities = list(cache.values())
-        ids = {e.id for e in ents}
-        msg.removed_ids = sorted(i for i in self._published_revision if i not in ids)
+        msg.removed_ids = sorted(i for i in self._published_revision if i not in revisions)
         if publishing:
             self._msg_cache = cache
-            self._published_revision = {e.id: e.revision for e in ents}
+            self._published_revision = revisions
         return msg
+
+    #: Publishing (extraction + mesh messages) takes at most this share of the time: a map that grows
+    #: every frame changes every entity's mesh, and converting them all at each short period starved
+    #: integration and the services.
+    PUBLISH_DUTY = 0.3
 
     def _publish(self) -> None:
         if not self._changed or self._services_waiting:
             return
+        if time.monotonic() < self._next_publish:
+            return
+        t0 = time.monotonic()
         try:
             with self.lock:  # only the extraction needs the map; the conversions run outside
                 self._changed = False
                 ents = self.mapper.entities(with_meshes=True)
-            msg = self._entities_msg(ents, self.include_meshes, publishing=True)
+                frames = self.mapper.frames_integrated
+            msg = self._entities_msg(ents, self.include_meshes, publishing=True, frames=frames)
         except (RuntimeError, ValueError) as exc:  # never let one bad extraction take the node down
             self.get_logger().error(f"entity extraction failed: {exc}", throttle_duration_sec=5.0)
             return
         self.pub_entities.publish(msg)
         self.counters["publications"] += 1
+        self._next_publish = t0 + (time.monotonic() - t0) / self.PUBLISH_DUTY
         self.pub_markers.publish(map_markers(ents, self.map_frame, msg.header.stamp))
 
     def status(self) -> dict:
@@ -427,7 +462,9 @@ class MapperNode(Node):
                 "entity_publications": self.counters["publications"],
                 "counters": dict(self.counters), "checkpoints": cp.saved if cp else 0,
                 "last_checkpoint": str(cp.last_path) if cp and cp.last_path else "",
-                "last_checkpoint_s": round(cp.last_cost_s, 3) if cp else 0.0}
+                "last_checkpoint_s": round(cp.last_cost_s, 3) if cp else 0.0,
+                # frames in the newest checkpoint written: what a restarted (resume:=true) mapper starts from
+                "checkpoint_frames": self.checkpoint_frames}
 
     def _report(self) -> None:
         status = self.status()
@@ -458,6 +495,7 @@ class MapperNode(Node):
         assert self.checkpointer is not None
         try:
             path = self.checkpointer.save(snapshot, {"frames_integrated": snapshot.meta["frames_integrated"]})
+            self.checkpoint_frames = int(snapshot.meta["frames_integrated"])
             self.get_logger().info(f"checkpoint {path} ({self.checkpointer.last_cost_s:.2f} s)")
         except (OSError, ValueError) as exc:
             self.counters["checkpoint_failed"] += 1
@@ -533,11 +571,23 @@ class MapperNode(Node):
         try:
             with self._service_turn():
                 ents = self.mapper.entities(with_meshes=True)  # boxes come from the meshes
-            res.entities = self._entities_msg(ents, req.include_meshes, publishing=False)
+                frames = self.mapper.frames_integrated
+            res.entities = self._entities_msg(ents, req.include_meshes, publishing=False, frames=frames)
             res.success, res.message = True, f"{len(res.entities.entities)} entities {self._timing(t0)}"
         except (RuntimeError, ValueError) as exc:
             res.success, res.message = False, f"entity extraction failed: {exc}"
         return res
+
+
+
+def _mesh_digest(e) -> str:
+    """A fingerprint of an entity's mesh and labels (what a consumer would see change)."""
+    h = hashlib.sha1(f"{e.class_name}|{e.class_id}|{e.category}|{e.revision}".encode())
+    if e.vertices is not None:
+        h.update(np.ascontiguousarray(e.vertices, np.float64).tobytes())
+    if e.faces is not None:
+        h.update(np.ascontiguousarray(e.faces, np.int64).tobytes())
+    return h.hexdigest()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -39,7 +39,7 @@ from ros_nodes.conversions import (
     rgb_to_image,
 )
 from ros_nodes.parameters import declare_config
-from ros_nodes.qos import SENSOR_RELIABLE, TF_DYNAMIC
+from ros_nodes.qos import SENSOR_RECORDING, TF_DYNAMIC
 from ros_nodes.runner import init_ros
 
 
@@ -91,18 +91,18 @@ class RGBDPlayer(Node):
         self.clock_period_s = settings.clock_period_s
         prefix = settings.topic_prefix.rstrip("/")
         self.pub_color = self.create_publisher(Image, settings.color_topic or f"{prefix}/color/image_raw",
-                                               SENSOR_RELIABLE)
+                                               SENSOR_RECORDING)
         self.pub_depth = self.create_publisher(Image, settings.depth_topic or f"{prefix}/depth/image_rect_raw",
-                                               SENSOR_RELIABLE)
+                                               SENSOR_RECORDING)
         self.pub_info = self.create_publisher(CameraInfo, settings.camera_info_topic
-                                              or f"{prefix}/color/camera_info", SENSOR_RELIABLE)
+                                              or f"{prefix}/color/camera_info", SENSOR_RECORDING)
         self.pub_clock = (self.create_publisher(Clock, "/clock", QoSProfile(
             depth=1, reliability=ReliabilityPolicy.RELIABLE)) if settings.publish_clock else None)
         self.paused = False
         self._paused_at: float | None = None
         self._last_clock = 0.0
         self.create_service(SetBool, "~/set_paused", self._srv_set_paused)
-        self.pub_labels = self.create_publisher(Image, "/ground_truth/panoptic_labels", SENSOR_RELIABLE)
+        self.pub_labels = self.create_publisher(Image, "/ground_truth/panoptic_labels", SENSOR_RECORDING)
         self.pub_tf = self.create_publisher(TFMessage, "/tf", TF_DYNAMIC)
         self.published = 0
         self.finished = False

@@ -36,16 +36,21 @@ class SensorSubscription:
     """A subscription to a sensor topic whose reliability follows the topic's publishers."""
 
     def __init__(self, node: Node, msg_type: Any, topic: str, callback: Callable[[Any], None],
-                 callback_group: CallbackGroup | None = None, check_period_s: float = 1.0) -> None:
+                 callback_group: CallbackGroup | None = None, check_period_s: float = 1.0, depth: int = 0) -> None:
+        """`depth`: history depth (0: the sensor profiles' own)."""
         self._node, self._type, self._topic = node, msg_type, topic
         self._callback, self._group = callback, callback_group
+        self._depth = depth
         self.reliability = ReliabilityPolicy.RELIABLE
         self._sub = node.create_subscription(msg_type, topic, callback, self._profile(), callback_group=callback_group)
         self.switches = 0
         steady_timer(node, check_period_s, self.check, callback_group)
 
     def _profile(self) -> QoSProfile:
-        return SENSOR_BEST_EFFORT if self.reliability == ReliabilityPolicy.BEST_EFFORT else SENSOR_RELIABLE
+        base = SENSOR_BEST_EFFORT if self.reliability == ReliabilityPolicy.BEST_EFFORT else SENSOR_RELIABLE
+        if not self._depth:
+            return base
+        return QoSProfile(history=base.history, depth=self._depth, reliability=base.reliability)
 
     def check(self) -> None:
         """Recreate the subscription when the publishers' reliability changed."""

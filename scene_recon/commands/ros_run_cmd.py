@@ -11,6 +11,7 @@ order and the scene folder stays behind.
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import sys
 import threading
@@ -23,6 +24,8 @@ from recon_core.ros_graph import BACKENDS, GraphOptions, graph_nodes
 EXIT_NO_SCENE = 3
 #: Where (under the mapper's data root OUT/map) the final map is saved.
 FINAL_MAP = "final"
+#: The player lets reliable subscribers drain this long (s) after its last frame before it exits.
+PLAYER_DRAIN_S = 0.5
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -69,6 +72,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="bag: the scene is final once graph and URDF did not change for S seconds")
     p.add_argument("--settle-timeout", type=float, default=300.0, metavar="S",
                    help="bag: export anyway this long after the recording ended")
+    p.add_argument("--respawn", type=int, default=3, metavar="N",
+                   help="restart a node that dies up to N times (the mapper resumes from its newest checkpoint; "
+                   "the others rejoin from the latched topics); 0: a dying node stops the run")
     p.add_argument("--quiet-nodes", action="store_true", help="do not forward the nodes' logs (still in OUT/ros/logs)")
     p.set_defaults(func=run)
 
@@ -89,7 +95,7 @@ def graph_options(args: argparse.Namespace) -> GraphOptions:
 
 def run(args: argparse.Namespace) -> int:
     from scene_recon.ros_runner.monitor import GraphMonitor
-    from scene_recon.ros_runner.processes import LogSink, start_child, stop_children
+    from scene_recon.ros_runner.processes import LogSink, start_child, stop_children, usage
 
     opts = graph_options(args)
     out = Path(opts.out)
@@ -113,15 +119,28 @@ def run(args: argparse.Namespace) -> int:
     children = []
     code = 0
     exported: str | None = None
+    report: dict = {"options": vars(opts), "nodes": {}}
     try:
         for spec in specs:
             children.append(start_child(spec, run_dir, sink))
         player = next((c for c in children if c.name == "rgbd_player"), None)
         played_at: float | None = None
+        respawns: dict[str, int] = {}
         last_line, last_print = "", 0.0
+        last_usage: dict[str, dict] = {}
+        report["usage"] = last_usage
         while not stop.is_set():
             time.sleep(0.2)
+            for c in children:  # sampled while running: a node that exits (the player) keeps its last figures
+                last_usage[c.name] = usage(c) or last_usage.get(c.name, {})
             failed = [c for c in children if c is not player and c.poll() is not None]
+            for c in [c for c in failed if respawns.get(c.name, 0) < args.respawn]:
+                respawns[c.name] = respawns.get(c.name, 0) + 1
+                say(f"node {c.name} exited with code {c.poll()}; restarting it ({respawns[c.name]}/{args.respawn})"
+                    + (f" with {c.spec.respawn_parameters}" if c.spec.respawn_parameters else ""))
+                children[children.index(c)] = start_child(c.spec.respawned(), run_dir, sink,
+                                                          attempt=respawns[c.name])
+                failed.remove(c)
             if failed:
                 for c in failed:
                     say(f"node {c.name} exited with code {c.poll()}; last lines:\n  " + "\n  ".join(c.lines[-15:]))
@@ -133,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
                     code = 1
                     break
                 played_at = time.monotonic()
+                report["played_s"] = round(played_at - t_start, 2)
                 say(f"recording played in {played_at - t_start:.1f} s; waiting for the scene to settle")
             line = monitor.snapshot().line()
             if line != last_line or time.monotonic() - last_print > 10:
@@ -146,8 +166,11 @@ def run(args: argparse.Namespace) -> int:
                     exported = _export(monitor, say)
                     if exported is None:
                         code = EXIT_NO_SCENE
-                    say(f"end to end: {time.monotonic() - t_start:.1f} s from start, "
-                        f"{time.monotonic() - played_at:.1f} s after the last frame")
+                    _measure(report, monitor, children, t_start, played_at, usage)
+                    say(f"end to end: {report['exported_s']:.1f} s from start; the last URDF came "
+                        f"{report['last_frame_to_urdf_s']:.1f} s after the last frame; per node (CPU s, peak MiB): "
+                        + ", ".join(f"{n} {u.get('cpu_s', '?')}/{u.get('peak_rss_mib', '?')}"
+                                    for n, u in report["nodes"].items()))
                     if not args.keep_running:
                         break
                     say("nodes stay up for planners (--keep-running); Ctrl-C stops them")
@@ -159,8 +182,14 @@ def run(args: argparse.Namespace) -> int:
                 if exported is None and code == 0:
                     code = EXIT_NO_SCENE
     finally:
+        if not report["nodes"]:
+            report["nodes"] = {c.name: usage(c) or report.get("usage", {}).get(c.name, {}) for c in children}
+        report.pop("usage", None)
         monitor.close()
         codes = stop_children(list(reversed(children)))
+        report["exit_codes"] = codes
+        if run_dir.is_dir():
+            (run_dir / "run.json").write_text(json.dumps(report, indent=1, default=str), encoding="utf-8")
         for sig, handler in old.items():
             signal.signal(sig, handler)
     bad = {n: c for n, c in codes.items() if c != 0}
@@ -169,6 +198,19 @@ def run(args: argparse.Namespace) -> int:
         code = code or 1
     say(f"scene folder: {out / 'scene'}" if exported else f"no scene exported (logs in {run_dir / 'logs'})")
     return code
+
+
+def _measure(report: dict, monitor, children, t_start: float, played_at: float, usage) -> None:
+    """Timing and per-node resources into `report` (written to OUT/ros/run.json).
+
+    The player exits `PLAYER_DRAIN_S` after its last frame, so that is when the last frame went out."""
+    p = monitor.snapshot()
+    last_frame = played_at - PLAYER_DRAIN_S
+    report.update(exported_s=round(time.monotonic() - t_start, 2), revision=p.revision,
+                  last_frame_to_urdf_s=round(p.description_at - last_frame, 2),
+                  frames_integrated=(p.status or {}).get("frames_integrated", 0),
+                  dropped_frames=(p.status or {}).get("dropped_frames", 0),
+                  nodes={c.name: usage(c) or report["usage"].get(c.name, {}) for c in children})
 
 
 def _export(monitor, say) -> str | None:

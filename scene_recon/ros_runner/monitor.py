@@ -29,6 +29,8 @@ class Progress:
     revision: int = 0
     links: int = 0
     description_at: float = 0.0
+    replacer: dict | None = None  # the CAD replacer's status (busy, from_scratch)
+    replacer_at: float = 0.0
 
     def line(self) -> str:
         s = self.status or {}
@@ -65,6 +67,7 @@ class GraphMonitor:
         self.node.create_subscription(String, "mapper_status", self._on_status, latched)
         self.node.create_subscription(ContactGraph, "contact_graph", self._on_graph, latched)
         self.node.create_subscription(String, "robot_description", self._on_description, latched)
+        self.node.create_subscription(String, "cad_replacer_status", self._on_replacer, latched)
         self._trigger = Trigger
         self.export_client = self.node.create_client(Trigger, "export_scene")
         self._save_map = SaveMap
@@ -93,6 +96,14 @@ class GraphMonitor:
             self.progress.graph_nodes, self.progress.graph_at = len(msg.nodes), time.monotonic()
             self.progress.graphs += 1
 
+    def _on_replacer(self, msg) -> None:
+        try:
+            status = json.loads(msg.data)
+        except ValueError:
+            return
+        with self._lock:
+            self.progress.replacer, self.progress.replacer_at = status, time.monotonic()
+
     def _on_description(self, msg) -> None:
         match = REVISION.search(msg.data)
         with self._lock:
@@ -116,8 +127,14 @@ class GraphMonitor:
             "unpublished_changes", False)
         now = time.monotonic()
         last_change = max(p.graph_at, p.description_at)
-        return (idle and p.revision > 0 and p.description_at >= p.graph_at and now - last_change >= quiet_s
-                and now - p.status_at < 5.0)
+        # the replacer has seen the newest graph, its last pass ran from scratch and is over: its scene is the
+        # batch one (`scene-recon replace`); without its status, the URDF must be newer than the graph
+        if p.replacer is not None:
+            replaced = (p.replacer_at >= p.graph_at and not p.replacer.get("busy")
+                        and p.replacer.get("from_scratch", True))
+        else:
+            replaced = p.description_at >= p.graph_at
+        return idle and replaced and p.revision > 0 and now - last_change >= quiet_s and now - p.status_at < 5.0
 
     def export(self, timeout_s: float = 120.0) -> tuple[bool, str]:
         """Ask the CAD replacer to write the scene folder; (success, URDF path or the reason)."""

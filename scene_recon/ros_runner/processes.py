@@ -59,10 +59,10 @@ class LogSink:
             self.stream.flush()
 
 
-def write_params(spec: NodeSpec, folder: Path) -> Path:
+def write_params(spec: NodeSpec, folder: Path, suffix: str = "") -> Path:
     """The node's parameter file (the form launch_ros writes too)."""
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{spec.name}.yaml"
+    path = folder / f"{spec.name}{suffix}.yaml"
     path.write_text(yaml.safe_dump(spec.params_yaml(), sort_keys=False), encoding="utf-8")
     return path
 
@@ -78,12 +78,15 @@ def _forward(child_name: str, stream: TextIO, log: TextIO, sink: LogSink, keep: 
     log.close()
 
 
-def start_child(spec: NodeSpec, run_dir: Path, sink: LogSink, env: dict[str, str] | None = None) -> Child:
-    """Start `python -m <module> --ros-args ...` for `spec`; its parameters go through a params file."""
-    params = write_params(spec, run_dir / "params")
+def start_child(spec: NodeSpec, run_dir: Path, sink: LogSink, env: dict[str, str] | None = None,
+                attempt: int = 0) -> Child:
+    """Start `python -m <module> --ros-args ...` for `spec`; its parameters go through a params file.
+    A restarted node (`attempt` > 0) logs into `<name>.<attempt>.log`."""
+    suffix = f".{attempt}" if attempt else ""
+    params = write_params(spec, run_dir / "params", suffix)
     logs = run_dir / "logs"
     logs.mkdir(parents=True, exist_ok=True)
-    log_path = logs / f"{spec.name}.log"
+    log_path = logs / f"{spec.name}{suffix}.log"
     argv = [sys.executable, "-m", spec.module, *spec.ros_args(params)]
     proc = subprocess.Popen(argv, env=env if env is not None else os.environ.copy(), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True, bufsize=1,
@@ -95,6 +98,20 @@ def start_child(spec: NodeSpec, run_dir: Path, sink: LogSink, env: dict[str, str
                               name=f"log-{spec.name}", daemon=True)
     reader.start()
     return Child(spec, proc, log_path, reader, keep)
+
+
+def usage(child: Child) -> dict[str, float]:
+    """CPU seconds (user + system, since the start) and peak resident memory (MiB) of a running child,
+    from /proc (Linux); {} when it is gone or /proc is not there."""
+    try:
+        stat = Path(f"/proc/{child.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        status = Path(f"/proc/{child.proc.pid}/status").read_text()
+    except OSError:
+        return {}
+    ticks = os.sysconf("SC_CLK_TCK")
+    cpu_s = (int(stat[11]) + int(stat[12])) / ticks  # utime, stime (fields 14, 15 of stat)
+    peak = next((line.split()[1] for line in status.splitlines() if line.startswith("VmHWM:")), "0")
+    return {"cpu_s": round(cpu_s, 2), "peak_rss_mib": round(int(peak) / 1024, 1)}
 
 
 def stop_children(children: list[Child], timeout_s: float = 30.0) -> dict[str, int]:

@@ -1,8 +1,9 @@
 """End to end over DDS (loopback): `scene-recon ros-run --bag` plays a short generated bag through the four
-nodes as separate processes; an independent client in this process gets a URDF that yourdfpy loads, TF
-for every link, applies a scene action and sees it take effect; the example planner client opens a
-door; the exported scene equals `scene-recon run`'s on the same bag (same objects, classes, supports,
-CAD choices); Ctrl-C (SIGINT) stops every node cleanly and the scene folder stays behind.
+nodes as separate processes; the settled scene equals `scene-recon run`'s on the same bag (same objects,
+classes, CAD choices, URDF joints); an independent client in this process gets a URDF that yourdfpy loads,
+TF for every link, applies a scene action and sees it take effect; the example planner client opens a
+door; the mapper killed with SIGKILL is restarted by the runner from its checkpoint; Ctrl-C (SIGINT) stops
+every node cleanly and the scene folder stays behind.
 
 The node set is `recon_core.ros_graph.graph_nodes`, the description the launch files start too.
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -19,6 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 from testsupport.ros import call_service, domain_id, spin_until
 
 from scene_recon.synthetic.generate import GenerateConfig, generate_recording
@@ -51,6 +54,19 @@ def _scene(folder: Path) -> tuple[dict[str, tuple], list[tuple]]:
     return {r["name"]: (r["class_name"], r["kind"], r.get("cad_id")) for r in detail}, joints
 
 
+def _child_pid(parent: int, module: str) -> int:
+    """The pid of `parent`'s child process running `python -m <module>`."""
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+            cmdline = (stat.parent / "cmdline").read_bytes().split(b"\0")
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == parent and module.encode() in cmdline:
+            return int(stat.parent.name)
+    raise AssertionError(f"no child of {parent} runs {module}")
+
+
 def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
     import rclpy
     import yourdfpy
@@ -59,7 +75,7 @@ def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
     from std_msgs.msg import String
     from tf2_msgs.msg import TFMessage
 
-    from ros_nodes.qos import LATCHED, TF_LISTEN, TF_STATIC
+    from ros_nodes.qos import LATCHED, STATUS, TF_LISTEN, TF_STATIC
     from scene_recon.cli import main as cli
 
     rec = _recording(tmp_path / "rec")
@@ -73,8 +89,14 @@ def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
     out = tmp_path / "ros"
     log = tmp_path / "ros-run.log"
     t0 = time.perf_counter()
+    # the package's settings, but a checkpoint after every frame: the mapper killed below resumes from it
+    config = tmp_path / "config"
+    shutil.copytree(REPO_ROOT / "config", config)
+    mapper_yaml = yaml.safe_load((config / "mapper.yaml").read_text())
+    mapper_yaml["checkpoint"].update(every_n_frames=1, every_s=0.0)
+    (config / "mapper.yaml").write_text(yaml.safe_dump(mapper_yaml))
     runner = subprocess.Popen([sys.executable, "-m", "scene_recon.cli", "ros-run", "--bag", rec["bag"], "--out",
-                               str(out), "--seeds-per-class", SEEDS, "--keep-running"],
+                               str(out), "--seeds-per-class", SEEDS, "--keep-running", "--config-dir", str(config)],
                               env=env, stdout=log.open("w"), stderr=subprocess.STDOUT, cwd=tmp_path)
     rclpy.init()
     node = rclpy.create_node("e2e_client")
@@ -90,10 +112,14 @@ def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
         node.create_subscription(JointState, "joint_states", joint_states.append, 10)
         node.create_subscription(TFMessage, "/tf", on_tf, TF_LISTEN)
         node.create_subscription(TFMessage, "/tf_static", on_tf, TF_STATIC)
+        statuses: list[dict] = []
+        node.create_subscription(String, "mapper_status", lambda m: statuses.append(json.loads(m.data)), STATUS)
         exported = out / "scene" / "replacement.json"
         assert spin_until(node, lambda: exported.is_file() or runner.poll() is not None, 180), log.read_text()[-4000:]
         assert runner.poll() is None, log.read_text()[-4000:]
         ros_s = time.perf_counter() - t0
+        time.sleep(0.5)  # (the export's last files)
+        shutil.copytree(out / "scene", tmp_path / "settled")
         text = log.read_text()
         assert "frames integrated 30 " in text and "dropped 0" in text, text[-4000:]
 
@@ -143,6 +169,14 @@ def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
             j.name for j in urdf.joint_map.values() if j.type == "prismatic"}
         assert abs(summary["value"] - summary["target"]) < 1e-6 and summary["tf"]["child"] in links
         assert {o["name"] for o in summary["objects"]} == set(_scene(tmp_path / "offline" / "scene")[0])
+
+        # SIGKILL the mapper: the runner restarts it, and it resumes from its checkpoint with every frame
+        assert spin_until(node, lambda: statuses[-1]["checkpoint_frames"] == 30, 30), statuses[-1]
+        os.kill(_child_pid(runner.pid, "ros_nodes.mapper_node"), signal.SIGKILL)
+        assert spin_until(node, lambda: "panoptic_mapper exited with code -9; restarting it" in log.read_text(), 30)
+        assert spin_until(node, lambda: "integrated" not in statuses[-1]["counters"]
+                          and statuses[-1]["frames_integrated"] == 30, 60), statuses[-1]  # its own counters: 0
+        assert "resumed from checkpoint" in (out / "ros" / "logs" / "panoptic_mapper.1.log").read_text()
     finally:
         node.destroy_node()
         rclpy.shutdown()
@@ -162,11 +196,11 @@ def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
     assert (out / "scene" / "scene.urdf").is_file() and (out / "map" / "final" / "entities.json").is_file()
 
     # one code path: the same scene as `scene-recon run` on the same bag
-    (ros_scene, ros_joints), (offline_scene, offline_joints) = _scene(out / "scene"), _scene(tmp_path / "offline"
-                                                                                             / "scene")
+    (ros_scene, ros_joints), (offline_scene, offline_joints) = (_scene(tmp_path / "settled"),
+                                                                _scene(tmp_path / "offline" / "scene"))
     assert ros_scene == offline_scene, (ros_scene, offline_scene)
     assert ros_joints == offline_joints
     ros_classes = sorted(c for c, *_ in ros_scene.values())
     assert "cabinet" in ros_classes and len(ros_classes) >= 4, ros_classes
-    print(f"\nscene-recon run: {offline_s:.1f} s; ros-run (30 frames at 30 fps, nodes started, scene settled and "
+    print(f"\nscene-recon run: {offline_s:.1f} s; ros-run (nodes started, 30 frames at 30 fps, scene settled and "
           f"exported): {ros_s:.1f} s; {len(ros_scene)} objects, the same in both: {ros_classes}")
