@@ -12,6 +12,7 @@ are associated and extracted ignoring the class; no instance merging).
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import io
 import json
@@ -390,6 +391,19 @@ class PanopticMapper:
         return list(ents)
 
     def _extract(self, with_meshes: bool) -> list[Entity]:
+        """Entities of the regularised map; the map itself is left as it was.
+
+        Regularising merges labels; done in place, an extraction changed how later frames were
+        associated, so the map depended on when (and how often) someone asked for entities: the ROS
+        node publishes every few seconds, `scene-recon map` extracts once at the end, and their maps of
+        one bag differed (vertex counts 1% apart). The merges are made on a copy of the counts."""
+        saved = copy.deepcopy(self.counts), dict(self.merge_votes)
+        try:
+            return self._extract_regularized(with_meshes)
+        finally:
+            self.counts, self.merge_votes = saved
+
+    def _extract_regularized(self, with_meshes: bool) -> list[Entity]:
         self.regularize()
         counts = self.counts
         seg_class: dict[int, tuple[int, int]] = {}

@@ -24,6 +24,8 @@ from recon_core.ros_graph import BACKENDS, GraphOptions, graph_nodes
 EXIT_NO_SCENE = 3
 #: Where (under the mapper's data root OUT/map) the final map is saved.
 FINAL_MAP = "final"
+#: How long (s) saving the map and exporting the scene may take each (a stuck node must not hold up Ctrl-C).
+EXPORT_TIMEOUT_S = 30.0
 #: The player lets reliable subscribers drain this long (s) after its last frame before it exits.
 PLAYER_DRAIN_S = 0.5
 
@@ -216,9 +218,9 @@ def _measure(report: dict, monitor, children, t_start: float, played_at: float, 
 def _export(monitor, say) -> str | None:
     """The mapper's map into OUT/map/final (map.npz, entities.json), the scene into OUT/scene."""
     t0 = time.monotonic()
-    ok, message = monitor.save_map(FINAL_MAP)
+    ok, message = monitor.save_map(FINAL_MAP, timeout_s=EXPORT_TIMEOUT_S)
     say(f"map saved: {message}" if ok else f"map not saved: {message}")
-    ok, message = monitor.export()
+    ok, message = monitor.export(timeout_s=EXPORT_TIMEOUT_S)
     if ok:
         say(f"scene exported: {message} ({time.monotonic() - t0:.1f} s)")
         return message

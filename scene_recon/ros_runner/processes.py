@@ -78,6 +78,30 @@ def _forward(child_name: str, stream: TextIO, log: TextIO, sink: LogSink, keep: 
     log.close()
 
 
+def _libc_prctl():
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+
+_PRCTL = _libc_prctl()
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: SIGTERM it when the runner dies (Linux PR_SET_PDEATHSIG).
+
+    The nodes run in sessions of their own (so a terminal's Ctrl-C reaches the runner first); without
+    this, a runner killed with SIGKILL left them running, still answering on the DDS domain (seen: a
+    later test's service calls were answered by such orphans)."""
+    if _PRCTL is not None:  # (resolved beforehand: nothing may be imported between fork and exec)
+        _PRCTL(1, int(signal.SIGTERM))  # 1 = PR_SET_PDEATHSIG
+
+
 def start_child(spec: NodeSpec, run_dir: Path, sink: LogSink, env: dict[str, str] | None = None,
                 attempt: int = 0) -> Child:
     """Start `python -m <module> --ros-args ...` for `spec`; its parameters go through a params file.
@@ -90,7 +114,7 @@ def start_child(spec: NodeSpec, run_dir: Path, sink: LogSink, env: dict[str, str
     argv = [sys.executable, "-m", spec.module, *spec.ros_args(params)]
     proc = subprocess.Popen(argv, env=env if env is not None else os.environ.copy(), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True, bufsize=1,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_die_with_parent)
     keep: list[str] = []
     log = log_path.open("w", encoding="utf-8")
     log.write(f"$ {' '.join(argv)}\n")
