@@ -177,6 +177,8 @@ class MapperNode(Node):
         self.create_service(ExtractEntities, "extract_entities", self._srv_extract, callback_group=services)
         self.colors: collections.deque[Image] = collections.deque(maxlen=30)
         self.depths: collections.deque[Image] = collections.deque()  # not paired yet (color came late)
+        self._head: Image | None = None  # the frame at the head of the queue, and since when it is there
+        self._head_since = 0.0
         self.info: CameraInfo | None = None
         self.queue: collections.deque[tuple[Image, Image, float]] = collections.deque()
         self.pending: list[_Pending] = []
@@ -297,8 +299,13 @@ class MapperNode(Node):
         if not self.queue or (self.in_order and self.pending):
             return
         color_msg, depth_msg, arrived = self.queue[0]
-        # waiting is measured from the frame's arrival, not its stamp: replayed recordings carry old stamps
-        waited = time.monotonic() - arrived
+        # waiting is measured from when the frame reached the head of the queue, not from its stamp
+        # (replayed recordings carry old stamps) nor its arrival (behind a backlog every queued frame had
+        # waited longer than tf_wait_s already, and a camera info that came a moment late dropped them all:
+        # 13 of 60 frames of a played bag)
+        if self._head is not depth_msg:
+            self._head, self._head_since = depth_msg, time.monotonic()
+        waited = time.monotonic() - max(arrived, self._head_since)
         if self.info is None:
             if waited < self.tf_wait_s:
                 return
