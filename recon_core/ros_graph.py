@@ -173,6 +173,9 @@ def graph_nodes(opts: GraphOptions) -> list[NodeSpec]:
             "camera_info_topic": opts.camera_info_topic,
             # start once the mapper listens (and the oracle service, which reads the labels): no frame lost
             "wait_for_subscribers": 1, "labels_topic_in": LABELS_TOPIC if backend == "oracle" else "",
+            # the mapper's TF subscription is best effort: /tf sent before it has matched the player is lost
+            # for good (the first 3 frames of a bag once); 0.5 s after the counts went up was not always enough
+            "wait_grace_s": 1.5,
             "wait_for_label_subscribers": 1 if backend == "oracle" else 0,
         }))
     return nodes
