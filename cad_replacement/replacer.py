@@ -19,6 +19,7 @@ once per library model (``GeometryCache``).
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -267,7 +268,17 @@ class CadReplacer:
         edge = graph.supports.get(node.id)
         box_key = None if node.box is None else tuple(
             round(float(v), 4) for v in (*node.box.center, *node.box.size, node.box.yaw))
-        key: tuple[Any, ...] = (entity.revision, len(entity.vertices), edge.parent_id if edge else None, box_key)
+        # The observation depends on more than the node itself (the support height from the parent's box,
+        # the children cut off, the front from the walls and the other boxes): it is part of the key, so an
+        # incremental replacement (the ROS node, graph after graph) ends where a batch one (`replace`) does.
+        obs: ObjectObservation | None = None
+        failure: ObservationError | None = None
+        try:
+            obs = self._observation(node, entity, graph, walls, obstacles)
+        except ObservationError as exc:
+            failure = exc
+        key: tuple[Any, ...] = (entity.revision, len(entity.vertices), edge.parent_id if edge else None, box_key,
+                                _observation_digest(obs))
         cached = self._results.get(node.id)
         if cached is not None and cached.key == key:
             cached.record.reused = True
@@ -275,7 +286,8 @@ class CadReplacer:
         record = ReplacementRecord(node.id, node.name, node.class_name, "cad")
         replacement: ObjectReplacement | None = None
         try:
-            obs = self._observation(node, entity, graph, walls, obstacles)
+            if obs is None:
+                raise failure or ObservationError(f"{node.name!r}: no observation")
             replacement = replace_object(obs, self.library, self.config, cache=self.cache,
                                          class_table=self.class_table)
             record.timings = dict(replacement.timings)
@@ -402,3 +414,17 @@ class _RankedAlternatives(Sequence[PlacedObject]):
 
 __all__ = ["CadReplacer", "PhysicalCheck", "ReplacementRecord", "ReplacementResult", "layout_object",
            "observed_mesh_object", "rest_on", "support_height"]
+
+
+def _observation_digest(obs: ObjectObservation | None) -> str:
+    """A fingerprint of everything an observation hands to matching and alignment."""
+    if obs is None:
+        return ""
+    h = hashlib.sha1(np.ascontiguousarray(obs.points, np.float64).tobytes())
+    if obs.normals is not None:
+        h.update(np.ascontiguousarray(obs.normals, np.float64).tobytes())
+    box = obs.box
+    extra = (None if box is None else (*box.center, *box.size, box.yaw), obs.support_z,
+             None if obs.front_hint is None else tuple(np.asarray(obs.front_hint, float)))
+    h.update(repr(extra).encode())
+    return h.hexdigest()

@@ -12,6 +12,7 @@ are associated and extracted ignoring the class; no instance merging).
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import io
 import json
@@ -390,6 +391,19 @@ class PanopticMapper:
         return list(ents)
 
     def _extract(self, with_meshes: bool) -> list[Entity]:
+        """Entities of the regularised map; the map itself is left as it was.
+
+        Regularising merges labels; done in place, an extraction changed how later frames were
+        associated, so the map depended on when (and how often) someone asked for entities: the ROS
+        node publishes every few seconds, `scene-recon map` extracts once at the end, and their maps of
+        one bag differed (vertex counts 1% apart). The merges are made on a copy of the counts."""
+        saved = copy.deepcopy(self.counts), dict(self.merge_votes)
+        try:
+            return self._extract_regularized(with_meshes)
+        finally:
+            self.counts, self.merge_votes = saved
+
+    def _extract_regularized(self, with_meshes: bool) -> list[Entity]:
         self.regularize()
         counts = self.counts
         seg_class: dict[int, tuple[int, int]] = {}
@@ -448,6 +462,7 @@ class PanopticMapper:
         v, f, vlab = self.tsdf.extract_mesh()
         if len(f) == 0:
             return
+        v, f, vlab = canonical_mesh_order(v, f, vlab)
         lut = self.counts.canonical_lut(len(entity_of_label))
         canon = lut[np.clip(vlab, 0, len(lut) - 1)]
         ent_v = np.where(canon < len(entity_of_label), entity_of_label[np.clip(canon, 0, len(entity_of_label) - 1)], 0)
@@ -611,3 +626,22 @@ class MapSnapshot:
         write_bytes_atomic(folder / "map.npz", data)
         write_text_atomic(folder / "map.json", json.dumps(meta, indent=1))
         return folder / "map.npz"
+
+
+def canonical_mesh_order(vertices: np.ndarray, faces: np.ndarray,
+                         vertex_labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The extracted mesh with its vertices sorted by (x, y, z) and its faces sorted (winding kept).
+
+    Open3D's block hash map emits vertices in an order that varies from run to run and between
+    processes, and the later stages (box fits, CAD alignment sampling) depend on that order: two runs
+    on the same frames (`scene-recon run` twice, or `run` and the ROS graph) picked different CAD
+    models. In this order the same surface always gives the same arrays.
+    """
+    order = np.lexsort((vertices[:, 2], vertices[:, 1], vertices[:, 0]))
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    f = rank[faces]
+    shift = np.argmin(f, axis=1)  # rotate each face to start at its smallest index: same winding
+    f = np.take_along_axis(f, (shift[:, None] + np.arange(3)[None, :]) % 3, axis=1)
+    f = f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]
+    return vertices[order], f, vertex_labels[order]

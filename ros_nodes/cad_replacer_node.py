@@ -1,7 +1,11 @@
 """`cad_replacer`: stage 4 (CAD replacement) as a ROS 2 node over ``cad_replacement``.
 
-Inputs: ``contact_graph`` (scene_recon_interfaces/ContactGraph, latched) and ``panoptic_entities``
-(PanopticEntityArray: the geometry behind the nodes). After every graph update the replacer
+Inputs: ``contact_graph_json`` (std_msgs/String, latched: the graph in the JSON of `recon_core.contact_graph`,
+lossless — unrefined boxes, plane areas, contact ratios —, the very file `scene-recon replace` reads),
+or else ``contact_graph`` (scene_recon_interfaces/ContactGraph, latched; used until a JSON graph has
+been seen, for publishers that only have the typed message), and ``contact_graph_entities``
+(PanopticEntityArray: the geometry behind the nodes as the contact-graph builder left it — the same
+geometry `scene-recon replace` reads from the `graph` command's `nodes/` folder). After every graph update the replacer
 re-matches only the entities whose revision, parent or box changed and republishes:
 
 * ``robot_description`` (std_msgs/String, transient-local): the scene URDF, root ``map``, link meshes
@@ -14,7 +18,7 @@ re-matches only the entities whose revision, parent or box changed and republish
 Services: ``apply_scene_action`` (ApplySceneAction: set a joint, move, re-parent; validated by
 ``cad_replacement.actions``, a refused action changes nothing) and ``export_scene`` (std_srvs/Trigger:
 writes the scene folder of ``cad_replacement.export`` (scene.urdf, scene.xml, scene.glb, joint_states.json)
-plus replacement.json into ``output_dir``; the message names the URDF).
+plus replacement.json and contact_graph.json into ``output_dir``; the message names the URDF).
 Every publication carries the scene revision in the URDF (``<!-- revision N -->``) and in the
 ``joint_states`` header's frame id is the map frame. Parameters: ``CadReplacerNodeConfig`` and
 ``CadReplacementConfig`` under ``replace.`` (dotted names, see ``ros_nodes.parameters``).
@@ -50,6 +54,7 @@ from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replacer import CadReplacer
 from cad_replacement.scene_model import ReplacedScene
 from recon_core.config import Settings, setting
+from recon_core.contact_graph import ContactGraph
 from recon_core.entity import Entity
 from recon_core.errors import EntityError
 from recon_core.io import write_text_atomic
@@ -59,7 +64,7 @@ from ros_nodes.conversions import make_transform_stamped, matrix_to_transform, n
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, msg_to_entity
 from ros_nodes.parameters import declare_config
 from ros_nodes.qos import ENTITIES, LATCHED, TF_DYNAMIC, TF_STATIC
-from ros_nodes.runner import run_node
+from ros_nodes.runner import run_node, steady_timer
 
 ACTION_KIND = {ApplySceneAction.Request.SET_JOINT: "set_joint", ApplySceneAction.Request.MOVE_OBJECT: "move",
                ApplySceneAction.Request.REPARENT: "reparent"}
@@ -69,8 +74,10 @@ ACTION_KIND = {ApplySceneAction.Request.SET_JOINT: "set_joint", ApplySceneAction
 class CadReplacerNodeConfig(Settings):
     """ROS-side settings of the CAD replacer; the replacement itself is `CadReplacementConfig` (``replace.``)."""
 
-    graph_topic: str = setting("contact_graph", doc="ContactGraph input (latched)")
-    entities_topic: str = setting("panoptic_entities", doc="PanopticEntityArray input (node geometry)")
+    graph_topic: str = setting("contact_graph", doc="ContactGraph input (latched; the JSON one wins)")
+    graph_json_topic: str = setting("contact_graph_json", doc="contact graph as JSON (std_msgs/String, latched)")
+    entities_topic: str = setting("contact_graph_entities",
+                                  doc="PanopticEntityArray input: node geometry (the contact graph node's)")
     description_topic: str = setting("robot_description", doc="URDF output (std_msgs/String, latched)")
     joint_states_topic: str = setting("joint_states", doc="JointState output")
     markers_topic: str = setting("cad_markers", doc="MarkerArray output (latched)")
@@ -81,6 +88,11 @@ class CadReplacerNodeConfig(Settings):
     min_period_s: float = setting(0.5, min=0.0, doc="replace at most this often (s)")
     mesh_root: str = setting(DEFAULT_MAP_ROOT, doc="entity meshes given by mesh_uri are read only under this folder "
                              "(the mapper's data_root); empty: inline meshes only")
+    #: Replacement is incremental (an unchanged object keeps its match); the physical check's choices
+    #: among ranked candidates can then depend on the order objects came in. Once no graph came for this
+    #: long, the scene is replaced once more from scratch (= `scene-recon replace`) and published if it differs.
+    final_replace_s: float = setting(1.0, min=0.0, doc="replace from scratch after this long (s) without a new "
+                                     "graph (0: never)")
 
 
 class CadReplacerNode(Node):
@@ -89,7 +101,11 @@ class CadReplacerNode(Node):
         self.settings = declare_config(self, CadReplacerNodeConfig)
         replace_cfg = declare_config(self, CadReplacementConfig, prefix="replace.")
         library = CadLibrary(root=self.settings.cad_dir or None, seeds_per_class=self.settings.seeds_per_class)
-        self.replacer = CadReplacer(library, replace_cfg, physical_check=PhysicalCheck(method=replace_cfg.method))
+        self._make_replacer = lambda: CadReplacer(library, replace_cfg,
+                                                  physical_check=PhysicalCheck(method=replace_cfg.method))
+        self.replacer = self._make_replacer()
+        self._incremental = False
+        self._last_input = time.monotonic()
         self.output_dir = Path(self.settings.output_dir).resolve()
         self.mesh_root = Path(self.settings.mesh_root).expanduser().resolve() if self.settings.mesh_root else None
         self.lock = threading.RLock()  # _install publishes the dynamic state under the same lock
@@ -99,7 +115,8 @@ class CadReplacerNode(Node):
         self.joint_names: list[str] = []
         self.records: list[dict] = []
         self.entities: dict[int, Entity] = {}
-        self.graph_msg: ContactGraphMsg | None = None
+        self.graph_msg: ContactGraphMsg | str | None = None  # the typed message, or the JSON text
+        self._replaced_graph: ContactGraph | None = None  # the graph the current scene was replaced from
         self._dirty = False
         self._last = -float("inf")
         self.counters = {"graphs": 0, "replacements": 0, "rematched": 0, "actions": 0, "refused": 0,
@@ -108,6 +125,7 @@ class CadReplacerNode(Node):
         io = MutuallyExclusiveCallbackGroup()
         s = self.settings
         self.pub_description = self.create_publisher(String, s.description_topic, LATCHED)
+        self.pub_status = self.create_publisher(String, "cad_replacer_status", LATCHED)
         self.pub_markers = self.create_publisher(MarkerArray, s.markers_topic, LATCHED)
         self.pub_joints = self.create_publisher(JointState, s.joint_states_topic, 10)
         self.pub_tf = self.create_publisher(TFMessage, "/tf", TF_DYNAMIC)
@@ -115,10 +133,12 @@ class CadReplacerNode(Node):
         self.create_subscription(PanopticEntityArray, s.entities_topic, self._on_entities, ENTITIES,
                                  callback_group=io)
         self.create_subscription(ContactGraphMsg, s.graph_topic, self._on_graph, LATCHED, callback_group=io)
+        self.create_subscription(String, s.graph_json_topic, self._on_graph_json, LATCHED, callback_group=io)
+        self._json_seen = False
         self.create_service(ApplySceneAction, "apply_scene_action", self._srv_action, callback_group=io)
         self.create_service(Trigger, "export_scene", self._srv_export, callback_group=io)
-        self.create_timer(0.05, self._maybe_replace, callback_group=work)
-        self.create_timer(s.tf_period_s, self._publish_dynamic, callback_group=io)
+        steady_timer(self, 0.05, self._maybe_replace, work)
+        steady_timer(self, s.tf_period_s, self._publish_dynamic, io)
 
     # ------------------------------------------------------------------ inputs
     def _on_entities(self, msg: PanopticEntityArray) -> None:
@@ -133,6 +153,7 @@ class CadReplacerNode(Node):
                 self.counters["bad_entities"] += 1
                 self.get_logger().warning(f"entity {e.id} skipped: {exc}", throttle_duration_sec=5.0)
         with self.lock:
+            self._last_input = time.monotonic()
             for i in msg.removed_ids:
                 self.entities.pop(int(i), None)
             self.entities.update(fresh)
@@ -140,30 +161,71 @@ class CadReplacerNode(Node):
 
     def _on_graph(self, msg: ContactGraphMsg) -> None:
         with self.lock:
+            if self._json_seen:  # the same graph comes as JSON too, without the typed message's losses
+                return
             self.graph_msg = msg
+            self._dirty = True
+        self.counters["graphs"] += 1
+
+    def _on_graph_json(self, msg: String) -> None:
+        with self.lock:
+            self._last_input = time.monotonic()
+            self._json_seen = True
+            self.graph_msg = msg.data
             self._dirty = True
         self.counters["graphs"] += 1
 
     # ------------------------------------------------------------------ replacement
     def _maybe_replace(self) -> None:
         with self.lock:
-            if not self._dirty or self.graph_msg is None or time.monotonic() - self._last < self.settings.min_period_s:
+            final = (not self._dirty and self._incremental and self.graph_msg is not None
+                     and self.settings.final_replace_s > 0
+                     and time.monotonic() - self._last_input >= self.settings.final_replace_s)
+            if final:
+                self.replacer = self._make_replacer()  # no result of an earlier graph carries over
+                self._incremental = False
+            elif (not self._dirty or self.graph_msg is None
+                  or time.monotonic() - self._last < self.settings.min_period_s):
                 return
+            else:  # (without final passes every scene counts as final)
+                self._incremental = self.settings.final_replace_s > 0
             self._dirty = False
             self._last = time.monotonic()
-            graph = graph_from_msg(self.graph_msg)
+            graph = (ContactGraph.from_dict(json.loads(self.graph_msg)) if isinstance(self.graph_msg, str)
+                     else graph_from_msg(self.graph_msg))
             entities = dict(self.entities)
             revision = self.scene.revision + 1 if self.scene is not None else 1
+        self._publish_status(busy=True)
         t0 = time.perf_counter()
         result = self.replacer.replace(graph, entities)
         result.scene.revision = revision
         self.counters["replacements"] += 1
         self.counters["rematched"] += result.rematched
         with self.lock:
+            if final and self.scene is not None and self._urdf_body(result.scene) == self._urdf_body(self.scene):
+                self.get_logger().info("replaced from scratch: the same scene; revision kept")
+                self._publish_status(busy=False)
+                return
             self.records = [r.to_dict() for r in result.records]
+            self._replaced_graph = graph
             self._install(result.scene)
+        self._publish_status(busy=False)
         self.get_logger().info(f"scene revision {revision}: {len(result.scene)} objects, {result.rematched} "
-                               f"re-matched in {time.perf_counter() - t0:.2f} s; {self.counters}")
+                               f"re-matched in {time.perf_counter() - t0:.2f} s"
+                               f"{' (from scratch)' if final else ''}; {self.counters}")
+
+    def _urdf_body(self, scene: ReplacedScene) -> str:
+        """The scene's URDF without its revision: what tells two scenes apart."""
+        mesh_dir = self.output_dir / "meshes"
+        return scene_to_tree(scene).urdf_text(mesh_dir, f"file://{mesh_dir}/")
+
+    def _publish_status(self, busy: bool) -> None:
+        """`cad_replacer_status` (JSON, latched): revision, whether a replacement runs, and whether the
+        current scene was replaced from scratch (then it is what `scene-recon replace` gives)."""
+        with self.lock:
+            status = {"revision": self.scene.revision if self.scene is not None else 0, "busy": busy,
+                      "from_scratch": not self._incremental, "counters": dict(self.counters)}
+        self.pub_status.publish(String(data=json.dumps(status)))
 
     def _install(self, scene: ReplacedScene) -> None:
         """Make ``scene`` current and publish its description, static TF, markers and dynamic state."""
@@ -248,11 +310,13 @@ class CadReplacerNode(Node):
 
     def _srv_export(self, _req: Trigger.Request, res: Trigger.Response) -> Trigger.Response:
         with self.lock:
-            tree, records, scene = self.tree, list(self.records), self.scene
+            tree, records, scene, graph = self.tree, list(self.records), self.scene, self._replaced_graph
         if tree is None or scene is None:
             res.success, res.message = False, "no scene yet: waiting for a contact graph"
             return res
         urdf = export_scene(scene, self.output_dir).urdf
+        if graph is not None:  # the input, as `scene-recon replace` leaves it: the folder can be scored alone
+            graph.save(self.output_dir / "contact_graph.json")
         write_text_atomic(self.output_dir / "replacement.json",
                           json.dumps({"revision": scene.revision, "objects_detail": records}, indent=1))
         res.success, res.message = True, str(urdf)

@@ -4,8 +4,14 @@ Input: ``panoptic_entities`` (scene_recon_interfaces/PanopticEntityArray) from t
 entity carries a ``revision``; only entities whose revision changed are re-initialised (box,
 planes), ``removed_ids`` are dropped, then the relations are rebuilt over all nodes.
 Outputs (latched, so RViz and late joiners get the current graph): ``contact_graph``
-(scene_recon_interfaces/ContactGraph) and ``contact_graph_markers`` (visualization_msgs/MarkerArray:
-boxes as LINE_LIST, supporting planes as thin CUBEs, support arrows parent -> child, labels).
+(scene_recon_interfaces/ContactGraph), ``contact_graph_markers`` (visualization_msgs/MarkerArray:
+boxes as LINE_LIST, supporting planes as thin CUBEs, support arrows parent -> child, labels) and
+``contact_graph_json`` (std_msgs/String, latched: the graph as `recon_core.contact_graph` JSON, the
+`graph` command's contact_graph.json, lossless for the CAD replacer) and
+``contact_graph_entities`` (PanopticEntityArray, transient-local): the geometry behind every node as
+the builder left it (split walls, merged fragments, trimmed contact bands), which is what the CAD
+replacer fits to, exactly as `scene-recon replace` fits to the `graph` command's `nodes/` folder.
+Its revisions change whenever a node's geometry changes.
 The frame id is the entity array's. Parameters: ``config_file`` (the builder YAML, empty:
 config/scene_graph.yaml), every key of that file under its dotted name (``support.a_th``,
 ``proximal.broadphase``, ``support_joints`` for the joint table, ...; see ``ros_nodes.parameters``),
@@ -19,6 +25,8 @@ The message conversions live here too (the only ROS-facing code of the contact g
 
 from __future__ import annotations
 
+import hashlib
+import json
 import sys
 import time
 from dataclasses import dataclass
@@ -33,7 +41,7 @@ from scene_recon_interfaces.msg import OrientedBox as OrientedBoxMsg
 from scene_recon_interfaces.msg import PanopticEntityArray, ProximalEdge
 from scene_recon_interfaces.msg import SupportEdge as SupportEdgeMsg
 from shape_msgs.msg import Plane as PlaneMsg
-from std_msgs.msg import ColorRGBA, Header
+from std_msgs.msg import ColorRGBA, Header, String
 from visualization_msgs.msg import Marker, MarkerArray
 
 from recon_core.config import Settings, setting
@@ -41,11 +49,11 @@ from recon_core.contact_graph import SCENE, ContactGraph, GraphNode, SupportEdge
 from recon_core.entity import EntityError
 from recon_core.geometry.box import GravityBox
 from recon_core.geometry.plane import Plane, SurfacePlane
-from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, msg_to_entity, oriented_box_msg
+from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, msg_to_entity, oriented_box_msg
 from ros_nodes.parameters import declare_config, declare_config_file
 from ros_nodes.qos import ENTITIES as ENTITIES_QOS
 from ros_nodes.qos import LATCHED
-from ros_nodes.runner import run_node
+from ros_nodes.runner import run_node, steady_timer
 from scene_graph.builder import ContactGraphBuilder
 from scene_graph.classify import ARTICULATED, LAYOUT, RIGID
 from scene_graph.config import DEFAULT_CONFIG_FILE, SceneGraphConfig
@@ -201,10 +209,19 @@ class ContactGraphNodeConfig(Settings):
     entities_topic: str = setting("panoptic_entities", doc="PanopticEntityArray input (the mapper's output)")
     graph_topic: str = setting("contact_graph", doc="ContactGraph output (latched)")
     markers_topic: str = setting("contact_graph_markers", doc="MarkerArray output (latched)")
+    graph_json_topic: str = setting("contact_graph_json", doc="the graph as JSON (std_msgs/String, latched)")
+    node_entities_topic: str = setting("contact_graph_entities",
+                                       doc="PanopticEntityArray output: the geometry behind every node (latched)")
     min_period_s: float = setting(0.0, min=0.0, doc="rebuild the graph at most this often (s)")
     snapshot: bool = setting(False, doc="an entity missing from a message is dropped too, not only removed_ids")
     mesh_root: str = setting(DEFAULT_MAP_ROOT, doc="entity meshes given by mesh_uri are read only under this folder "
                              "(the mapper's data_root); empty: inline meshes only")
+    #: The builder updates incrementally (only changed entities are re-initialised); some of its steps
+    #: (layout splitting, fragment merging) keep state from earlier updates, so a graph built update by
+    #: update can differ from one built at once (`scene-recon graph`). Once no entities came for this long,
+    #: the graph is built once more from scratch and published if it differs.
+    final_rebuild_s: float = setting(1.0, min=0.0, doc="rebuild from scratch after this long (s) without new "
+                                     "entities (0: never)")
 
 
 class ContactGraphNode(Node):
@@ -217,17 +234,28 @@ class ContactGraphNode(Node):
         self.snapshot = settings.snapshot
         self.mesh_root = Path(settings.mesh_root).expanduser().resolve() if settings.mesh_root else None
         self.builder = ContactGraphBuilder(cfg, joints)
+        self._cfg, self._joints = cfg, joints
+        self.final_rebuild_s = settings.final_rebuild_s
+        self._incremental = False  # built update by update since the last build from scratch
+        self._last_message = time.monotonic()
+        self._last_graph_json = ""
         self.pub_graph = self.create_publisher(ContactGraphMsg, settings.graph_topic, LATCHED)
         self.pub_markers = self.create_publisher(MarkerArray, settings.markers_topic, LATCHED)
+        self.pub_graph_json = self.create_publisher(String, settings.graph_json_topic, LATCHED)
+        self.pub_node_entities = self.create_publisher(PanopticEntityArray, settings.node_entities_topic,
+                                                       ENTITIES_QOS)
         self.create_subscription(PanopticEntityArray, settings.entities_topic, self._on_entities, ENTITIES_QOS)
+        # node id -> (geometry fingerprint, revision published, message): revisions count geometry changes
+        self._node_msgs: dict[int, tuple[str, int, object]] = {}
         self.counters = {"messages": 0, "rebuilt_entities": 0, "builds": 0, "bad_entities": 0}
         self._header: Header | None = None
         self._dirty = False
         self._last_build = -float("inf")
-        self.create_timer(0.05, self._maybe_build)
+        steady_timer(self, 0.05, self._maybe_build)
 
     def _on_entities(self, msg: PanopticEntityArray) -> None:
         self.counters["messages"] += 1
+        self._last_message = time.monotonic()
         self.builder.remove(int(i) for i in msg.removed_ids)
         if self.snapshot:
             present = {int(e.id) for e in msg.entities}
@@ -254,17 +282,70 @@ class ContactGraphNode(Node):
         self._maybe_build()
 
     def _maybe_build(self) -> None:
+        if (not self._dirty and self._incremental and self.final_rebuild_s > 0 and self._header is not None
+                and time.monotonic() - self._last_message >= self.final_rebuild_s):
+            self._rebuild_from_scratch()
         if not self._dirty or self._header is None or time.monotonic() - self._last_build < self.min_period_s:
             return
         self._dirty = False
         self._last_build = time.monotonic()
         t0 = time.perf_counter()
         graph = self.builder.build(frame_id=self._header.frame_id or "map")
+        self._incremental = True
+        self._publish(graph, t0)
+
+    def _rebuild_from_scratch(self) -> None:
+        """Build the graph from all current entities with a fresh builder (= `scene-recon graph`)."""
+        assert self._header is not None
+        entities = [self.builder.features(i).entity for i in self.builder.ids]
+        builder = ContactGraphBuilder(self._cfg, self._joints)
+        builder.update(entities)
+        self.builder = builder
+        self._incremental = False
+        t0 = time.perf_counter()
+        graph = builder.build(frame_id=self._header.frame_id or "map")
+        if json.dumps(_without_stats(graph.to_dict())) != self._last_graph_json:
+            self.counters["final_rebuilds_changed"] = self.counters.get("final_rebuilds_changed", 0) + 1
+            self.get_logger().info("rebuilt from scratch: the graph differs from the incremental one; publishing it")
+            self._publish(graph, t0)
+
+    def _publish(self, graph: ContactGraph, t0: float) -> None:
+        assert self._header is not None
+        self._last_graph_json = json.dumps(_without_stats(graph.to_dict()))
+        # the node geometry first: a consumer that reacts to the graph finds it already there
+        self.pub_node_entities.publish(self._node_entities_msg(self._header))
+        self.pub_graph_json.publish(String(data=json.dumps(graph.to_dict())))
         self.pub_graph.publish(graph_to_msg(graph, self._header))
         self.pub_markers.publish(graph_markers(graph, self._header))
         self.counters["builds"] += 1
         self.get_logger().info(f"contact graph: {len(graph.nodes) - 1} nodes, {len(graph.proximal)} proximal, "
                                f"{1000 * (time.perf_counter() - t0):.0f} ms; {self.counters}")
+
+    def _node_entities_msg(self, header: Header) -> PanopticEntityArray:
+        """The builder's node entities; a node keeps its revision while its geometry stays the same."""
+        current = self.builder.node_entities()
+        msgs: dict[int, tuple[str, int, object]] = {}
+        for nid, e in sorted(current.items()):
+            digest = hashlib.sha1(np.ascontiguousarray(e.vertices, np.float64).tobytes()
+                                  + np.ascontiguousarray(e.faces, np.int64).tobytes()
+                                  + f"{e.class_name}|{e.category}".encode()).hexdigest()
+            old = self._node_msgs.get(nid)
+            if old is not None and old[0] == digest:
+                msgs[nid] = old
+                continue
+            revision = old[1] + 1 if old is not None else 1
+            msg = entity_to_msg(e, True)
+            msg.revision = revision
+            msgs[nid] = (digest, revision, msg)
+        removed = sorted(i for i in self._node_msgs if i not in msgs)
+        self._node_msgs = msgs
+        return PanopticEntityArray(header=header, entities=[m for _, _, m in msgs.values()], removed_ids=removed)
+
+
+
+def _without_stats(d: dict) -> dict:
+    """A graph's dict without its timings (two builds of one graph differ only there)."""
+    return {k: v for k, v in d.items() if k != "stats"}
 
 
 def main(args: list[str] | None = None) -> int:

@@ -42,8 +42,27 @@ def mesh_msg(vertices: np.ndarray, faces: np.ndarray) -> Mesh:
     v = np.asarray(vertices, np.float64)
     if not np.all(np.isfinite(v)):
         raise ValueError("mesh vertices must be finite")
-    return Mesh(triangles=[MeshTriangle(vertex_indices=[int(a), int(b), int(c)]) for a, b, c in faces],
-                vertices=[Point(x=float(x), y=float(y), z=float(z)) for x, y, z in v])
+    # (from Python lists: iterating numpy rows made numpy scalars and took 4x longer)
+    return Mesh(triangles=_triangles(faces), vertices=[Point(x=x, y=y, z=z) for x, y, z in v.tolist()])
+
+
+_FAST_TRIANGLES = "_vertex_indices" in getattr(MeshTriangle, "__slots__", ())
+
+
+def _triangles(faces: np.ndarray) -> list[MeshTriangle]:
+    """MeshTriangle messages of a face array. The generated constructor validates the fixed-size array
+    (2 us a triangle: 0.2 s for a 100k-face map, at every publication); the rows are uint32 already, so
+    they are set directly on the generated `_vertex_indices` slot (a third of the time)."""
+    rows = np.ascontiguousarray(faces, np.uint32)
+    if not _FAST_TRIANGLES:
+        return [MeshTriangle(vertex_indices=r) for r in rows]
+    out = []
+    for r in rows:
+        t = MeshTriangle.__new__(MeshTriangle)
+        t._check_fields = False
+        t._vertex_indices = r
+        out.append(t)
+    return out
 
 
 def entity_to_msg(e: Entity, include_mesh: bool = True, mesh_uri: str = "") -> PanopticEntity:

@@ -8,7 +8,8 @@ Outputs: `panoptic_entities` (PanopticEntityArray, transient-local: a consumer s
 later gets the current entities at once) and `panoptic_map_markers` (MarkerArray) at
 `publish_period_s` when the map changed; `mapper_status` (std_msgs/String, JSON, transient-local,
 every `status_period_s`): frames integrated, frames dropped (backlog) and every other counter,
-queue length, checkpoints. Services save_map / load_map / reset_map / extract_entities.
+queue length, keyframes waiting for labels, whether changes await publication, checkpoints.
+Services save_map / load_map / reset_map / extract_entities.
 
 Under load: the services run on a callback group of their own and take the map's lock between two
 frames (the integration loop steps aside while a service waits), so they answer within about one
@@ -34,6 +35,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import hashlib
 import json
 import sys
 import threading
@@ -65,8 +67,9 @@ from recon_core.paths import confined_path
 from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, map_markers
 from ros_nodes.parameters import declare_config, declare_config_file
-from ros_nodes.qos import ENTITIES, SENSOR_RELIABLE, STATUS
-from ros_nodes.runner import run_node
+from ros_nodes.qos import ENTITIES, RECORDING_DEPTH, STATUS
+from ros_nodes.runner import run_node, steady_timer
+from ros_nodes.sensor_subscription import SensorSubscription
 from ros_nodes.tf_listener import TFListener
 
 
@@ -92,6 +95,17 @@ class MapperNodeConfig(Settings):
     sync_slop_s: float = setting(0.02, min=0.0, doc="max |t_color - t_depth| (s) of an image pair")
     segmentation_timeout_s: float = setting(
         3.0, min=0.0, doc="a keyframe whose labels take longer (s) integrates without them")
+    #: Keyframes integrate when their labels arrive; meanwhile later frames integrate (a slow service never
+    #: holds the camera up). With `in_order`, later frames wait for the keyframe instead (at most
+    #: `segmentation_timeout_s`): frames integrate in recorded order, as `scene-recon map` integrates
+    #: them, so a played bag gives the offline map. For recordings; live cameras keep the default.
+    in_order: bool = setting(False, doc="integrate frames strictly in order (a keyframe holds later frames "
+                             "until its labels arrive or time out)")
+    #: Started together (a launch file, the runner), the service may be discovered a moment after the
+    #: first frames: until it has been seen once, a keyframe waits this long for it instead of being
+    #: mapped without labels. After that, a missing service never holds integration up.
+    segmentation_startup_wait_s: float = setting(
+        5.0, min=0.0, doc="until the service was first seen, a keyframe waits this long (s) for it")
     tf_wait_s: float = setting(0.5, min=0.0, doc="how long (s) a frame waits for its pose and camera info")
     publish_period_s: float = setting(2.0, min=0.0, min_exclusive=True,
                                       doc="entities and markers are published at most this often (s)")
@@ -115,6 +129,9 @@ class MapperNode(Node):
         self.sync_slop_ns = int(settings.sync_slop_s * 1e9)
         self.use_segmentation = settings.use_segmentation
         self.seg_timeout_s = settings.segmentation_timeout_s
+        self.seg_startup_wait_s = settings.segmentation_startup_wait_s
+        self.in_order = settings.in_order
+        self._seg_seen = False
         self.tf_wait_s = settings.tf_wait_s
         self.publish_period_s = settings.publish_period_s
         self.include_meshes = settings.publish_meshes
@@ -129,6 +146,7 @@ class MapperNode(Node):
         self._waiting_lock = threading.Lock()
         self.last_service_wait_s = 0.0
         self.checkpointer: Checkpointer | None = None
+        self.checkpoint_frames = 0
         self._checkpoint_thread: threading.Thread | None = None
         if self.config.checkpoint.enabled:
             store = CheckpointStore(self.data_root / CHECKPOINT_DIR, keep=self.config.checkpoint.keep)
@@ -142,12 +160,13 @@ class MapperNode(Node):
         self.map_group = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
         self.tf = TFListener(self, callback_group=MutuallyExclusiveCallbackGroup())
-        self.create_subscription(Image, settings.color_topic, self._on_color,
-                                 SENSOR_RELIABLE, callback_group=inputs)
-        self.create_subscription(Image, settings.depth_topic, self._on_depth,
-                                 SENSOR_RELIABLE, callback_group=inputs)
-        self.create_subscription(CameraInfo, settings.camera_info_topic, self._on_info, SENSOR_RELIABLE,
-                                 callback_group=inputs)
+        # camera topics: RELIABLE or BEST_EFFORT, whatever the driver offers (ros_nodes.sensor_subscription)
+        # (a recording, in_order: a deep history, so a frame the mapper is slow to take is not overwritten)
+        depth = RECORDING_DEPTH if self.in_order else 0
+        self.sensor_subs = [SensorSubscription(self, Image, settings.color_topic, self._on_color, inputs, depth=depth),
+                            SensorSubscription(self, Image, settings.depth_topic, self._on_depth, inputs, depth=depth),
+                            SensorSubscription(self, CameraInfo, settings.camera_info_topic, self._on_info, inputs,
+                                               depth=depth)]
         self.seg_client = self.create_client(SegmentImage, settings.segmentation_service)
         self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", ENTITIES)
         self.pub_markers = self.create_publisher(MarkerArray, "panoptic_map_markers", 1)
@@ -157,17 +176,23 @@ class MapperNode(Node):
         self.create_service(ResetMap, "reset_map", self._srv_reset, callback_group=services)
         self.create_service(ExtractEntities, "extract_entities", self._srv_extract, callback_group=services)
         self.colors: collections.deque[Image] = collections.deque(maxlen=30)
+        self.depths: collections.deque[Image] = collections.deque()  # not paired yet (color came late)
+        self._head: Image | None = None  # the frame at the head of the queue, and since when it is there
+        self._head_since = 0.0
         self.info: CameraInfo | None = None
         self.queue: collections.deque[tuple[Image, Image, float]] = collections.deque()
         self.pending: list[_Pending] = []
         self.counters = collections.Counter()
         self._changed = self.mapper.frames_integrated > 0  # a resumed map is published at once
-        self._published_revision: dict[int, int] = {}
+        self._next_publish = 0.0
+        self._published_revision: dict[int, tuple[str, int]] = {}  # id -> (mesh digest, revision published)
         # entity messages by (id, revision, with mesh): unchanged entities are not converted again
         self._msg_cache: dict[tuple[int, int, bool], object] = {}
-        self.create_timer(0.01, self._process, callback_group=self.map_group)
-        self.create_timer(self.publish_period_s, self._publish, callback_group=self.map_group)
-        self.create_timer(settings.status_period_s, self._report, callback_group=inputs)
+        steady_timer(self, 0.01, self._process, self.map_group)
+        # publishing converts meshes to messages outside the map's lock, on a group of its own: frames keep
+        # integrating meanwhile (the extraction itself holds the lock)
+        steady_timer(self, self.publish_period_s, self._publish, MutuallyExclusiveCallbackGroup())
+        steady_timer(self, settings.status_period_s, self._report, inputs)
         self.get_logger().info(f"data root {self.data_root}; checkpoints "
                                + (f"every {self.config.checkpoint.every_n_frames} frames / "
                                   f"{self.config.checkpoint.every_s:g} s" if self.checkpointer else "disabled"))
@@ -184,6 +209,7 @@ class MapperNode(Node):
         for why in ckpt.skipped:
             self.get_logger().warning(f"resume: {why}; using the older checkpoint {ckpt.path}")
         self.mapper = ckpt.mapper
+        self.checkpoint_frames = self.mapper.frames_integrated
         assert self.checkpointer is not None
         self.checkpointer.start(self.mapper.frames_integrated)
         self.get_logger().info(f"resumed from checkpoint {ckpt.path} ({self.mapper.frames_integrated} frames)")
@@ -215,14 +241,29 @@ class MapperNode(Node):
 
     def _on_color(self, msg: Image) -> None:
         self.colors.append(msg)
+        # the two streams are separate topics: a depth image may have come before its color image
+        t = stamp_to_ns(msg.header.stamp)
+        waiting = [d for d in self.depths if abs(stamp_to_ns(d.header.stamp) - t) <= self.sync_slop_ns]
+        for d in waiting:
+            self.depths.remove(d)
+            self._enqueue(msg, d)
 
     def _on_depth(self, msg: Image) -> None:
         t = stamp_to_ns(msg.header.stamp)
         best = min(self.colors, key=lambda c: abs(stamp_to_ns(c.header.stamp) - t), default=None)
         if best is None or abs(stamp_to_ns(best.header.stamp) - t) > self.sync_slop_ns:
-            self.counters["unpaired_depth"] += 1
+            self.depths.append(msg)
+            while len(self.depths) > self.UNPAIRED_DEPTHS:
+                self.depths.popleft()
+                self.counters["unpaired_depth"] += 1
             return
-        self.queue.append((best, msg, time.monotonic()))
+        self._enqueue(best, msg)
+
+    #: Depth images kept while their color image may still arrive.
+    UNPAIRED_DEPTHS = 10
+
+    def _enqueue(self, color: Image, depth: Image) -> None:
+        self.queue.append((color, depth, time.monotonic()))
         while len(self.queue) > self.max_queue:  # cannot keep up: drop the oldest, keep the newest
             self.queue.popleft()
             self.counters["dropped_backlog"] += 1
@@ -255,11 +296,16 @@ class MapperNode(Node):
 
     def _process_locked(self) -> None:
         self._collect_segmentations()
-        if not self.queue:
+        if not self.queue or (self.in_order and self.pending):
             return
         color_msg, depth_msg, arrived = self.queue[0]
-        # waiting is measured from the frame's arrival, not its stamp: replayed recordings carry old stamps
-        waited = time.monotonic() - arrived
+        # waiting is measured from when the frame reached the head of the queue, not from its stamp
+        # (replayed recordings carry old stamps) nor its arrival (behind a backlog every queued frame had
+        # waited longer than tf_wait_s already, and a camera info that came a moment late dropped them all:
+        # 13 of 60 frames of a played bag)
+        if self._head is not depth_msg:
+            self._head, self._head_since = depth_msg, time.monotonic()
+        waited = time.monotonic() - max(arrived, self._head_since)
         if self.info is None:
             if waited < self.tf_wait_s:
                 return
@@ -267,6 +313,9 @@ class MapperNode(Node):
             self.counters["no_camera_info"] += 1
             self.get_logger().warning("frame skipped: no camera info received yet", throttle_duration_sec=5.0)
             return
+        if (self.use_segmentation and not self._seg_seen and waited < self.seg_startup_wait_s
+                and not self.seg_client.service_is_ready()):
+            return  # the service is starting beside us: keep the frame at the head of the queue
         try:
             frame = self._make_frame(color_msg, depth_msg)
         except TransformLookupError as exc:
@@ -283,6 +332,7 @@ class MapperNode(Node):
             if not self.use_segmentation:
                 self.mapper.mark_keyframe(frame)
             elif self.seg_client.service_is_ready():
+                self._seg_seen = True
                 self.mapper.mark_keyframe(frame)
                 req = SegmentImage.Request(color=color_msg, has_depth=True, depth=depth_msg)
                 self.pending.append(_Pending(frame, color_msg, depth_msg, self.seg_client.call_async(req),
@@ -305,6 +355,7 @@ class MapperNode(Node):
                     res = item.future.result()
                     if res is not None and res.success:
                         masks = self._masks(res)
+                        self.counters["segmented_keyframes"] += 1
                     else:
                         self.counters["segmentation_failed"] += 1
                         self.get_logger().warning(f"segmentation failed: {getattr(res, 'message', '')}",
@@ -348,37 +399,64 @@ class MapperNode(Node):
             self.get_logger().error(f"frame not integrated: {exc}", throttle_duration_sec=5.0)
 
     # ------------------------------------------------------------------ outputs
-    def _entities_msg(self, ents: list, include_meshes: bool, publishing: bool) -> PanopticEntityArray:
+    def _entities_msg(self, ents: list, include_meshes: bool, publishing: bool, frames: int) -> PanopticEntityArray:
         """The message of extracted entities; runs outside the map's lock (the mesh conversion is slow).
 
+        An entity's published revision changes whenever its mesh does: the mapper's own revision follows
+        label updates only, while frames between keyframes grow the geometry too, and consumers (the
+        contact graph, the CAD replacer) skip an entity whose revision they have seen. A changed entity
+        gets `frames` (frames integrated at extraction) as its revision: that grows across a restart from
+        a checkpoint too, so a restarted mapper never reuses a revision for another mesh.
         Only the publisher (one thread) updates the conversion cache and the published revisions."""
         msg = PanopticEntityArray()
         msg.header.frame_id = self.map_frame
         msg.header.stamp = self.get_clock().now().to_msg()
         old, cache = self._msg_cache, {}
+        revisions: dict[int, tuple[str, int]] = {}
         for e in ents:
-            key = (int(e.id), int(e.revision), include_meshes)
-            cache[key] = old.get(key) or entity_to_msg(e, include_meshes)
+            digest = _mesh_digest(e)
+            prev = self._published_revision.get(int(e.id))
+            if prev is not None and prev[0] == digest:
+                revision = prev[1]
+            else:
+                revision = max(int(e.revision), int(frames), prev[1] + 1 if prev is not None else 0)
+            revisions[int(e.id)] = (digest, revision)
+            key = (int(e.id), revision, include_meshes)
+            entry = old.get(key)
+            if entry is None:
+                entry = entity_to_msg(e, include_meshes)
+                entry.revision = revision
+            cache[key] = entry
         msg.entities = list(cache.values())
-        ids = {e.id for e in ents}
-        msg.removed_ids = sorted(i for i in self._published_revision if i not in ids)
+        msg.removed_ids = sorted(i for i in self._published_revision if i not in revisions)
         if publishing:
             self._msg_cache = cache
-            self._published_revision = {e.id: e.revision for e in ents}
+            self._published_revision = revisions
         return msg
+
+    #: Publishing (extraction + mesh messages) takes at most this share of the time: a map that grows
+    #: every frame changes every entity's mesh, and converting them all at each short period starved
+    #: integration and the services.
+    PUBLISH_DUTY = 0.3
 
     def _publish(self) -> None:
         if not self._changed or self._services_waiting:
             return
+        if time.monotonic() < self._next_publish:
+            return
+        t0 = time.monotonic()
         try:
             with self.lock:  # only the extraction needs the map; the conversions run outside
                 self._changed = False
                 ents = self.mapper.entities(with_meshes=True)
-            msg = self._entities_msg(ents, self.include_meshes, publishing=True)
+                frames = self.mapper.frames_integrated
+            msg = self._entities_msg(ents, self.include_meshes, publishing=True, frames=frames)
         except (RuntimeError, ValueError) as exc:  # never let one bad extraction take the node down
             self.get_logger().error(f"entity extraction failed: {exc}", throttle_duration_sec=5.0)
             return
         self.pub_entities.publish(msg)
+        self.counters["publications"] += 1
+        self._next_publish = t0 + (time.monotonic() - t0) / self.PUBLISH_DUTY
         self.pub_markers.publish(map_markers(ents, self.map_frame, msg.header.stamp))
 
     def status(self) -> dict:
@@ -386,9 +464,14 @@ class MapperNode(Node):
         cp = self.checkpointer
         return {"frames_integrated": self.mapper.frames_integrated, "keyframes": self.mapper.keyframes,
                 "dropped_frames": self.counters["dropped_backlog"], "queue": len(self.queue),
+                # idle = nothing queued, no keyframe waiting for labels, every change published
+                "pending_segmentations": len(self.pending), "unpublished_changes": bool(self._changed),
+                "entity_publications": self.counters["publications"],
                 "counters": dict(self.counters), "checkpoints": cp.saved if cp else 0,
                 "last_checkpoint": str(cp.last_path) if cp and cp.last_path else "",
-                "last_checkpoint_s": round(cp.last_cost_s, 3) if cp else 0.0}
+                "last_checkpoint_s": round(cp.last_cost_s, 3) if cp else 0.0,
+                # frames in the newest checkpoint written: what a restarted (resume:=true) mapper starts from
+                "checkpoint_frames": self.checkpoint_frames}
 
     def _report(self) -> None:
         status = self.status()
@@ -419,6 +502,7 @@ class MapperNode(Node):
         assert self.checkpointer is not None
         try:
             path = self.checkpointer.save(snapshot, {"frames_integrated": snapshot.meta["frames_integrated"]})
+            self.checkpoint_frames = int(snapshot.meta["frames_integrated"])
             self.get_logger().info(f"checkpoint {path} ({self.checkpointer.last_cost_s:.2f} s)")
         except (OSError, ValueError) as exc:
             self.counters["checkpoint_failed"] += 1
@@ -494,11 +578,23 @@ class MapperNode(Node):
         try:
             with self._service_turn():
                 ents = self.mapper.entities(with_meshes=True)  # boxes come from the meshes
-            res.entities = self._entities_msg(ents, req.include_meshes, publishing=False)
+                frames = self.mapper.frames_integrated
+            res.entities = self._entities_msg(ents, req.include_meshes, publishing=False, frames=frames)
             res.success, res.message = True, f"{len(res.entities.entities)} entities {self._timing(t0)}"
         except (RuntimeError, ValueError) as exc:
             res.success, res.message = False, f"entity extraction failed: {exc}"
         return res
+
+
+
+def _mesh_digest(e) -> str:
+    """A fingerprint of an entity's mesh and labels (what a consumer would see change)."""
+    h = hashlib.sha1(f"{e.class_name}|{e.class_id}|{e.category}|{e.revision}".encode())
+    if e.vertices is not None:
+        h.update(np.ascontiguousarray(e.vertices, np.float64).tobytes())
+    if e.faces is not None:
+        h.update(np.ascontiguousarray(e.faces, np.int64).tobytes())
+    return h.hexdigest()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -8,6 +8,16 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 #: 640x480 frames (REFERENCE.md). A short queue bounds latency.
 SENSOR_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.RELIABLE)
 
+#: The same for publishers that offer best effort only (`ros_nodes.sensor_subscription` picks).
+SENSOR_BEST_EFFORT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+#: A played recording: every frame must arrive (the ROS graph must map what `scene-recon run` maps), and
+#: on loaded cores a reliable KEEP_LAST(5) writer or reader overwrote frames not yet taken (2 of 60
+#: 320x240 frames lost). A deeper history on both sides absorbs a consumer that falls behind for a moment.
+RECORDING_DEPTH = 30
+SENSOR_RECORDING = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=RECORDING_DEPTH,
+                              reliability=ReliabilityPolicy.RELIABLE)
+
 #: /tf_static is latched: late joiners must still receive it.
 TF_STATIC = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)

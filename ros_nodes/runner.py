@@ -14,14 +14,28 @@ import threading
 from collections.abc import Callable
 
 import rclpy
+from rclpy.callback_groups import CallbackGroup
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import Executor, ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from rclpy.timer import Timer
 
 from recon_core.ros_env import ensure_ros_environment
 
 #: How often (s) the spin loop looks at the stop flag.
 STOP_POLL_S = 0.1
+
+
+def steady_timer(node: Node, period_s: float, callback: Callable[[], None],
+                 callback_group: CallbackGroup | None = None) -> Timer:
+    """A timer on the steady clock, for a node's own work (integrating, publishing, status).
+
+    With `use_sim_time` a node's default timers run on /clock: when a bag is paused or has ended,
+    /clock stops and so would such timers, leaving the last frames unintegrated and the scene
+    unpublished. Stamps still come from the node's clock (the recording's time)."""
+    return node.create_timer(period_s, callback, callback_group=callback_group,
+                             clock=Clock(clock_type=ClockType.STEADY_TIME))
 
 
 def init_ros(args: list[str] | None = None) -> threading.Event:

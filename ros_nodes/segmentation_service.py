@@ -55,8 +55,8 @@ from recon_core.config import ConfigError, Settings, setting
 from recon_core.frame import DatasetError
 from ros_nodes.conversions import image_to_depth, image_to_labels, image_to_rgb, labels_to_image, stamp_to_ns
 from ros_nodes.parameters import declare_config, declare_config_file
-from ros_nodes.qos import SENSOR_RELIABLE
-from ros_nodes.runner import init_ros, shutdown_node, spin_until_stopped
+from ros_nodes.qos import SENSOR_RECORDING
+from ros_nodes.runner import init_ros, shutdown_node, spin_until_stopped, steady_timer
 
 NODE_NAME = "segmentation_service"
 DEFAULT_LABELS_TOPIC = "/ground_truth/panoptic_labels"
@@ -153,9 +153,9 @@ class SegmentationService(Node):
         self.create_service(SegmentImage, "segment_image", self.on_request,
                             callback_group=MutuallyExclusiveCallbackGroup())
         if isinstance(self.segmenter, OracleSegmenter):
-            self.create_subscription(Image, self.labels_topic, self.on_labels, SENSOR_RELIABLE,
+            self.create_subscription(Image, self.labels_topic, self.on_labels, SENSOR_RECORDING,
                                      callback_group=MutuallyExclusiveCallbackGroup())
-        self.create_timer(stats_period_s, self.log_stats, callback_group=MutuallyExclusiveCallbackGroup())
+        steady_timer(self, stats_period_s, self.log_stats, MutuallyExclusiveCallbackGroup())
         details = {
             "onnx": f"model {self.config.onnx.model or self.config.onnx.model_config}: "
                     f"{getattr(self.segmenter, 'description', '')}, on {getattr(self.segmenter, 'provider', '?')}",

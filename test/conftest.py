@@ -8,7 +8,10 @@ from pathlib import Path
 
 # Set before any rclpy import: these machines allow loopback traffic only.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.setdefault("ROS_DOMAIN_ID", "17")  # ROS tests pick their own (testsupport.ros.domain_id)
+# A caller's ROS_DOMAIN_ID is honoured by every ROS test (testsupport.ros.domain_id); without one, each
+# test picks its own. Remember which it was before giving the variable a default.
+os.environ.setdefault("SCENE_RECON_TEST_CALLER_DOMAIN", os.environ.get("ROS_DOMAIN_ID", ""))
+os.environ.setdefault("ROS_DOMAIN_ID", "17")
 if not os.environ.get("AMENT_PREFIX_PATH") and (Path(sys.prefix) / "share" / "ament_index").is_dir():
     os.environ["AMENT_PREFIX_PATH"] = sys.prefix
 

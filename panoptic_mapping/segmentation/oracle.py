@@ -111,7 +111,9 @@ class OracleSegmenter(PanopticSegmenter):
         labels = frame.extras["labels"]
         if labels.shape != color.shape[:2]:
             raise SegmentationError(f"label image {labels.shape} and color {color.shape[:2]} differ in size")
-        return self._spoil(labels, depth, frame.index)
+        # keyed by the frame's stamp, not its index: the ROS service sees stamps only, and the same
+        # frame must get the same noise offline (`scene-recon run`) and through the ROS graph
+        return self._spoil(labels, depth, frame.timestamp_ns)
 
     def segment_labels(
         self, labels: np.ndarray, depth: np.ndarray | None = None, key: int = 0

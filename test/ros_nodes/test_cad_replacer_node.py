@@ -91,7 +91,8 @@ def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
         node.create_subscription(JointState, "joint_states", joint_states.append, 10)
         node.create_subscription(TFMessage, "/tf", on_tf, 100)
         node.create_subscription(TFMessage, "/tf_static", on_static, TF_STATIC)
-        pub_entities = node.create_publisher(PanopticEntityArray, "panoptic_entities", ENTITIES)
+        # (standing in for the contact graph node: its node geometry and its graph)
+        pub_entities = node.create_publisher(PanopticEntityArray, "contact_graph_entities", ENTITIES)
         pub_graph = node.create_publisher(ContactGraph, "contact_graph", LATCHED)
         assert spin_until(node, lambda: pub_entities.get_subscription_count() > 0, 60), "node never subscribed"
         header = Header(frame_id="map")

@@ -226,7 +226,7 @@ def test_frames_from_the_simulator(small_frames):
     seg = OracleSegmenter.from_ground_truth(small_frames.scene, OracleConfig(level="default", seed=2))
     for f in small_frames.frames[:5]:
         a, b = seg.segment_frame(f), seg.segment(f.color, f.depth, f)
-        np.testing.assert_array_equal(a.labels, b.labels)  # keyed by frame.index
+        np.testing.assert_array_equal(a.labels, b.labels)  # keyed by the frame's stamp
         assert {s.class_name for s in a.stuff} <= {"floor", "wall", "ceiling"}
         assert all(s.instance_id == 0 for s in a.stuff) and a.latency_ms > 0
     with pytest.raises(SegmentationError, match="extras"):

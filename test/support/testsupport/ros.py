@@ -1,20 +1,34 @@
-"""DDS domains for tests: each ROS test gets its own id, all inside 0-101.
+"""DDS domains for tests: the caller's ROS_DOMAIN_ID when one was set, else an id of the test's own.
 
-Ids above 101 (except 215-232) map to UDP ports that can clash with the kernel's ephemeral range,
-and two tests sharing a domain can discover each other's leftover participants.
+A caller that sets ROS_DOMAIN_ID (two engineers, two CI jobs on one machine) gets every ROS test on
+that domain, so two such runs never talk to each other; the tests then run one after the other on it
+and each waits for its own nodes by name, not for "some other participant". With none set, each
+test gets an id of its own (varied by pid between runs), all inside 0-101: ids above 101 (except
+215-232) map to UDP ports that can clash with the kernel's ephemeral range.
 """
 
 from __future__ import annotations
 
 import os
 
-_TESTS = ("dds_exchange", "player", "segmentation", "mapper", "contact_graph", "spare1", "spare2", "spare3")
+_TESTS = ("dds_exchange", "player", "segmentation", "mapper", "contact_graph", "spare1", "spare2", "spare3", "e2e")
+#: Set by test/conftest.py before it gives ROS_DOMAIN_ID a default: the caller's own value, or "".
+CALLER_DOMAIN_VARIABLE = "SCENE_RECON_TEST_CALLER_DOMAIN"
+
+
+def caller_domain() -> int | None:
+    """The ROS_DOMAIN_ID the test run was started with, if any."""
+    value = os.environ.get(CALLER_DOMAIN_VARIABLE, "").strip()
+    return int(value) if value else None
 
 
 def domain_id(test: str) -> int:
-    """A domain id unique to `test` within this run (and varied by pid between runs)."""
+    """The caller's domain id; else one unique to `test` within this run (and varied by pid between runs)."""
+    caller = caller_domain()
+    if caller is not None:
+        return caller
     slot = _TESTS.index(test)
-    return 20 + (os.getpid() % 10) * 8 + slot  # 20 .. 99
+    return 10 + (os.getpid() % 10) * len(_TESTS) + slot  # 10 .. 99
 
 
 def spin_until(node, predicate, timeout: float) -> bool:
