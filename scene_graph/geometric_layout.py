@@ -10,7 +10,10 @@ paper (its segmenter has layout classes). Two steps, both in the gravity-aligned
   horizontal or vertical planar part (``layout_planes``) much larger than its class can be
   (``max_size_m`` of ``config/classes.yaml`` times ``size_factor``) and a real share of its area
   has swallowed floor or wall (a mask bleeding onto the wall behind a chair): that part leaves the
-  thing and joins the unlabelled surface.
+  thing and joins the unlabelled surface. A thing that is itself larger than its class can be gives
+  up its large vertical planar parts too, all but its largest part, however short each is (a table
+  box over the cabinet fronts of an L-shaped kitchen counter behind it: two fronts of 2.1 and 1.7 m,
+  each shorter than a table, made a 4.1 m "table" on real frames).
 * ``layout_from_geometry``: in the unlabelled surface, horizontal faces are grouped by height
   (area-weighted modes): the **floor** is the lowest large group (its faces within ``thickness``
   above and below: both faces of a slab), the **ceiling** the highest large group at least
@@ -131,8 +134,17 @@ def give_up_layout_planes(entity: Entity, max_size_m: float,
     _c, _n, area = _faces(entity)
     total = float(area.sum())
     give = np.zeros(len(entity.faces), bool)
-    for p in layout_planes(entity, cfg):
-        if p.extent > cfg.size_factor * max_size_m and p.area >= cfg.give_up_min_share * total:
+    parts = layout_planes(entity, cfg)
+    limit = cfg.size_factor * max_size_m
+    # a thing larger than its class can be that holds several large planar parts: its vertical ones
+    # other than its largest part are surface its mask bled onto (a table's box over the cabinet
+    # fronts behind it: each front shorter than a table, together with the table 4 m long)
+    oversized = _extent(entity.vertices[:, :2]) > limit
+    largest = max((p.area for p in parts), default=0.0)
+    for p in parts:
+        if p.area < cfg.give_up_min_share * total:
+            continue
+        if p.extent > limit or (oversized and p.kind == "vertical" and p.area < largest):
             give |= p.mask
     if not give.any() or give.all():
         return entity, None

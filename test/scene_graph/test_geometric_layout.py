@@ -146,6 +146,34 @@ def test_the_wall_a_chair_gave_up_becomes_a_wall_node_of_an_unlabelled_map():
     assert g.nodes[g.parent(7)].class_name == "floor"
 
 
+def table_with_cabinet_fronts(fronts: bool = True) -> trimesh.Trimesh:
+    """A 2.2 m x 1.0 m table top at 0.75 m whose mask bled onto the fronts of an L-shaped kitchen
+    counter behind it (0.9 m tall, 2.1 m and 1.8 m long: each shorter than a table can be)."""
+    parts = [patch([-1.0, -0.5, 0.75], [2.2, 0, 0], [0, 1.0, 0], 44, 20)]
+    if fronts:
+        parts += [patch([-2.1, 1.0, 0.0], [2.1, 0, 0], [0, 0, 0.9], 42, 18),
+                  patch([-2.1, -0.8, 0.0], [0, 1.8, 0], [0, 0, 0.9], 36, 18)]
+    return trimesh.util.concatenate(parts)
+
+
+def test_an_oversized_table_gives_up_the_cabinet_fronts_its_mask_bled_onto():
+    table = Entity.from_mesh(3, "table_3", "table", table_with_cabinet_fronts(), class_id=10)
+    kept, given = give_up_layout_planes(table, 2.0, GeometricLayoutConfig())
+    assert given is not None
+    assert np.ptp(kept.vertices[:, 0]) == pytest.approx(2.2, abs=0.01)
+    assert np.ptp(kept.vertices[:, 1]) == pytest.approx(1.0, abs=0.01)
+    assert np.allclose(kept.vertices[:, 2], 0.75)
+    assert kept.mesh().area == pytest.approx(2.2, rel=0.01)
+    assert given.mesh().area == pytest.approx(2.1 * 0.9 + 1.8 * 0.9, rel=0.01)
+    # the table alone keeps everything; so does one no larger than a table can be with one front
+    clean = Entity.from_mesh(3, "table_3", "table", table_with_cabinet_fronts(False), class_id=10)
+    assert give_up_layout_planes(clean, 2.0, GeometricLayoutConfig())[1] is None
+    short = trimesh.util.concatenate([patch([-1.0, -0.5, 0.75], [2.2, 0, 0], [0, 1.0, 0], 44, 20),
+                                      patch([-1.0, 0.5, 0.0], [0, 0, 0.75], [2.2, 0, 0], 18, 44)])
+    assert give_up_layout_planes(Entity.from_mesh(3, "t", "table", short, class_id=10), 2.0,
+                                 GeometricLayoutConfig())[1] is None
+
+
 def test_a_sofa_keeps_its_own_back_and_seat():
     sofa = trimesh.util.concatenate([box([0, 0, 0.0], [2.2, 0.9, 0.45]), box([0, 0.7, 0.45], [2.2, 0.9, 0.9])])
     e = Entity.from_mesh(5, "sofa_5", "sofa", sofa)
