@@ -219,6 +219,12 @@ def _integrate_or_skip(mapper: PanopticMapper, frame: Any, masks: PanopticMasks 
         return None
 
 
+def frames_to_read(available: int, data_config: DataInputConfig) -> int:
+    """How many of ``available`` frames `--start`/`--stride`/`--max-frames` select (the progress total)."""
+    n = len(range(max(data_config.start, 0), available, max(data_config.stride, 1)))
+    return min(n, data_config.max_frames) if data_config.max_frames else n
+
+
 def map_recording(
     source: str | Path,
     segmenter: Any,
@@ -282,7 +288,7 @@ def map_recording(
         run.checkpoint_s += checkpointer.last_cost_s
 
     with open_dataset(source, data_config) as loader:
-        total = len(loader) if hasattr(loader, "__len__") else None
+        total = frames_to_read(len(loader), data_config) if hasattr(loader, "__len__") else None
         frames = iter(loader)
         bar = tqdm(total=total, desc="mapping", unit="frame", disable=not progress)
         read = 0
