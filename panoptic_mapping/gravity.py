@@ -1,7 +1,8 @@
 """Gravity from depth: which way is up in a recording's world frame, and the rotation that aligns it.
 
 Every stage assumes a gravity-aligned map frame with z up (``recon_core.geometry.gravity``), but
-real recordings often are not: TUM RGB-D's motion-capture world has its "up" 63 deg from +z. This
+real recordings often are not: the 7-Scenes kitchen frames of andyzeng/tsdf-fusion-python have their
+"up" 116.8 deg from +z (docs/REAL_DATA.md). This
 module estimates up from the depth images themselves (ROS-free, numpy + OpenCV):
 
 1. per frame, surface normals of the depth image (box-smoothed central differences, kept only
