@@ -85,6 +85,13 @@ class GravityConfig(Settings):
     min_correction_deg: float = setting(1.0, min=0.0, max=90.0)
     #: Warn when the input's up is farther than this (deg) from +z.
     warn_deg: float = setting(5.0, min=0.0, max=180.0)
+    #: auto, refined as the map grows: every `refine_every_n`-th frame integrated after the window
+    #: adds its normals to the window's (0: off). The map cannot turn under way (its voxels are laid
+    #: out in the frame chosen first), so the whole recording's estimate is a check: written to
+    #: map.json (gravity.refined), and when it differs from the applied up by more than
+    #: `refine_warn_deg` a warning and OUT/gravity_refined.txt (pass it with --gravity to map again).
+    refine_every_n: int = setting(30, min=0)
+    refine_warn_deg: float = setting(2.0, min=0.0, max=180.0)
     seed: int = 0
 
     def __post_init__(self) -> None:
