@@ -332,3 +332,21 @@ def test_a_consistent_recording_refines_to_the_same_up_and_writes_no_file(tmp_pa
     assert g["refined"]["ok"] and g["refined"]["residual_deg"] < 1.0 and not g["refined"]["suggest_file"]
     assert not (tmp_path / "out" / "gravity_refined.txt").exists()
     assert "refined" not in _refined_map(folder, tmp_path / "off", refine_every_n=0)
+
+
+def test_gravity_monitor_checks_a_stream_it_cannot_rotate(sim):
+    """The ROS mapper node trusts its TF map frame: its first frames tell whether that frame is z up."""
+    from panoptic_mapping.gravity import GravityMonitor
+
+    frames = _views(sim, VIEWS)
+    cfg = GravityConfig(window_frames=3, stride=2)
+    for world, tilted in ((TILT, True), (np.eye(4), False)):
+        mon = GravityMonitor(cfg)
+        results = [mon.feed(depth, sim.intrinsics, world @ pose) for depth, pose in frames]
+        assert [r is not None for r in results] == [False] * 4 + [True, False]  # frames 1, 3, 5: done at 5
+        assert mon.done and mon.result is not None and mon.result.frames == 3
+        assert angle_deg(mon.result.up, world[:3, :3] @ Z) < 2.0
+        rec = mon.record()
+        assert rec["mode"] == "tf" and not rec["applied"] and rec["estimate"]["ok"]
+        assert bool(mon.warning) == tilted and ("the fixed frame's up is" in rec["note"]) == tilted
+    assert GravityMonitor(cfg).feed(frames[0][0], sim.intrinsics, None) is None  # no pose: nothing
