@@ -91,6 +91,8 @@ class GravityConfig(Settings):
     #: map.json (gravity.refined), and when it differs from the applied up by more than
     #: `refine_warn_deg` a warning and OUT/gravity_refined.txt (pass it with --gravity to map again).
     refine_every_n: int = setting(30, min=0)
+    #: z: still estimate up from the window and warn past `warn_deg` (the input is not rotated).
+    check_z: bool = True
     refine_warn_deg: float = setting(2.0, min=0.0, max=180.0)
     seed: int = 0
 

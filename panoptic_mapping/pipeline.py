@@ -180,6 +180,14 @@ def _resolve_gravity(source: str | Path, data_config: DataInputConfig | None = N
     if mode == "z":
         transform = np.eye(4)
         info["note"] = "gravity z: the input's +z is taken as up"
+        if cfg.check_z:  # trusted, but checked: a wrong --gravity z must not pass silently
+            est = estimate_gravity(source, data_config, cfg)
+            info["estimate"] = est.as_dict()
+            if est.ok and est.angle_deg > cfg.warn_deg:
+                info["note"] += f" (but its up is estimated {est.angle_deg:.1f} deg from +z, from the {est.method})"
+                log.warning("gravity z: the input's +z is taken as up, but the depth says up is %.1f deg from it "
+                            "(estimated from the %s): boxes, planes and supports will be tilted; --gravity auto "
+                            "rotates the map", est.angle_deg, est.method)
     elif mode == "auto":
         estimator = gravity_estimator(source, data_config, cfg)
         est = estimator.estimate()

@@ -221,6 +221,9 @@ def test_map_gravity_auto_rotates_a_tilted_recording_into_z_up(tilted_tum, tmp_p
     assert _map(tilted_tum, tmp_path / "z", "--gravity", "z") == 0
     z = json.loads(capsys.readouterr().out)["gravity"]
     assert z["mode"] == "z" and not z["applied"]
+    # trusted but checked: the 65 deg is said (it passed silently on real 7-Scenes frames, 117 deg off)
+    assert z["estimate"]["angle_from_z_deg"] == pytest.approx(angle_deg(TILT[:3, :3] @ Z, Z), abs=2.0)
+    assert "but its up is estimated" in z["note"]
     assert auto_share > 0.3 and _floor_share(tmp_path / "z") < 0.05
     # a transform file: the same as the truth
     f = tmp_path / "align.txt"
