@@ -19,7 +19,9 @@ paper (its segmenter has layout classes). Two steps, both in the gravity-aligned
   above and below: both faces of a slab), the **ceiling** the highest large group at least
   ``ceiling_min_height`` above the floor and ``ceiling_min_floor_share`` of the floor's area. The
   rest is split into vertical planar parts (``layout.wall_parts``); a part is a **wall** when it is
-  large (``wall_min_area``, ``wall_min_height`` tall) and bounds the room: at most
+  large (``wall_min_area``, ``wall_min_height`` tall; or a strip seen above the furniture in front of
+  it: ``wall_strip_min_area``, ``wall_strip_min_height`` tall, its top ``wall_strip_min_top`` above
+  the floor, as a kitchen's tiles above the counter) and bounds the room: at most
   ``wall_outside_share`` of all the map's surface lies more than ``wall_outside_margin`` beyond
   it (a cabinet front has the wall behind it; a wall has nothing).
 
@@ -169,6 +171,7 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
     groups = height_groups(centroid[flat, 2], area[flat], cfg.floor_min_area, cfg.plane_thickness)
     out: dict[str, Entity] = {}
     used = np.zeros(len(area), bool)
+    z_floor: float | None = None
     if groups:
         largest = max(a for _h, a in groups)
         big = sorted((h, a) for h, a in groups if a >= cfg.floor_min_share * largest)
@@ -188,7 +191,9 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
     rest_idx = np.flatnonzero(~used)
     if len(rest_idx):
         rest = sub_entity(surface, ~used)
-        wcfg = replace(layout, min_area=cfg.wall_min_area, min_length=cfg.wall_min_length)
+        strips = z_floor is not None and cfg.wall_strip_min_area < cfg.wall_min_area
+        wcfg = replace(layout, min_area=cfg.wall_strip_min_area if strips else cfg.wall_min_area,
+                       min_length=cfg.wall_min_length)
         masks, _dropped = wall_parts(rest, wcfg)
         ctx_c, ctx_a = _context_faces([surface, *context])
         keep = np.zeros(len(rest.faces), bool)
@@ -200,7 +205,13 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
             u = _wall_normal(rn[vert], ra[vert])
             s0 = float(np.average(rc[vert] @ u, weights=np.maximum(ra[vert], 1e-12)))
             zs = rest.vertices[np.unique(rest.faces[vert])][:, 2]
-            if float(np.ptp(zs)) < cfg.wall_min_height:
+            part_area = float(ra[m].sum())
+            large = part_area >= cfg.wall_min_area and float(np.ptp(zs)) >= cfg.wall_min_height
+            # a wall seen only above the furniture in front of it: a high strip
+            strip = (z_floor is not None and part_area >= cfg.wall_strip_min_area
+                     and float(np.ptp(zs)) >= cfg.wall_strip_min_height
+                     and float(zs.max()) >= z_floor + cfg.wall_strip_min_top)
+            if not (large or strip):
                 continue
             d = ctx_c @ u - s0
             margin = cfg.wall_outside_margin

@@ -204,3 +204,25 @@ def test_concat_entities_keeps_face_indices_valid():
     a = Entity.from_mesh(1, "a", "unknown", box([0, 0, 0], [1, 1, 1]))
     c = concat_entities(a, [Entity.from_mesh(2, "b", "unknown", box([2, 0, 0], [3, 1, 1]))])
     assert len(c.faces) == 24 and c.faces.max() == len(c.vertices) - 1 and c.id == 1
+
+
+def test_a_wall_seen_only_above_a_counter_is_a_wall():
+    """A kitchen's left wall showed only as its tiles above the counter (0.5 m tall, 0.7 m^2) on real
+    frames: too small for a wall, yet it bounds the room and rises 1.4 m above the floor."""
+    floor = patch([-2, -1.5, 0], [4, 0, 0], [0, 3, 0], 40, 30)
+    north = patch(WALLS["north"][0], WALLS["north"][1], [0, 0, 2.5])
+    strip = patch([-2, -1.0, 0.9], [0, 1.2, 0], [0, 0, 0.6], 24, 12)  # 0.72 m^2, 0.9-1.5 m
+    counter = [patch([-2, -1.0, 0.9], [0.6, 0, 0], [0, 1.2, 0], 12, 24),  # top
+               patch([-1.4, -1.0, 0.0], [0, 1.2, 0], [0, 0, 0.9], 24, 18)]  # front (a wall behind it)
+    g = build_contact_graph([unknown([floor, north, strip, *counter])])
+    walls = sorted((n for n in g.nodes.values() if n.class_name == "wall"), key=lambda n: n.box.center[0])
+    assert len(walls) == 2
+    west = walls[0]
+    assert west.box.center[0] == pytest.approx(-2.0, abs=0.1) and west.box.z_min == pytest.approx(0.9, abs=0.05)
+    assert west.box.size.max() == pytest.approx(1.2, abs=0.05)  # the strip only, not the counter front
+    # without strips (their thresholds at the wall's): the north wall alone
+    cfg = SceneGraphConfig()
+    cfg.geometric_layout.wall_strip_min_area = cfg.geometric_layout.wall_min_area
+    cfg.geometric_layout.wall_strip_min_height = cfg.geometric_layout.wall_min_height
+    assert sum(n.class_name == "wall" for n in build_contact_graph([unknown([floor, north, strip, *counter])],
+                                                                   cfg).nodes.values()) == 1
