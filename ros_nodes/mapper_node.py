@@ -311,10 +311,11 @@ class MapperNode(Node):
         self._integrate(frame, None, geometry_only=not self.use_segmentation)
 
     def _check_gravity(self, frame: RGBDFrame) -> None:
-        """Feed the gravity check (first frames only); its verdict goes to the map's gravity record."""
+        """Feed the gravity check (first frames, when no frame waits); its verdict goes to the map's
+        gravity record."""
         mon = self.gravity_monitor
-        if mon is None or mon.done:
-            return
+        if mon is None or mon.done or self.queue or self.pending:
+            return  # only with time to spare: never behind a backlog (~70 ms per checked 640x480 frame)
         result = mon.feed(frame.depth, frame.intrinsics, frame.pose)
         if result is None:
             return
