@@ -133,6 +133,8 @@ class MapperNode(Node):
         self.gravity_config = gcfg = load_config(DataInputConfig, CONFIG_DIR / "data.yaml").gravity
         gcfg.window_frames = settings.gravity_window_frames or gcfg.window_frames
         gcfg.stride = settings.gravity_stride or gcfg.stride
+        # cheaper than the CLI's (it runs inside the integration loop): a quarter of the pixels
+        gcfg.downsample, gcfg.samples_per_frame = max(gcfg.downsample, 4), min(gcfg.samples_per_frame, 1500)
         self.gravity_monitor = GravityMonitor(self.gravity_config) if settings.gravity_check else None
         # the map is guarded by `lock`; a service waiting for it makes the integration loop step
         # aside (`_services_waiting`), so a service answers within one frame's integration time
@@ -311,11 +313,10 @@ class MapperNode(Node):
         self._integrate(frame, None, geometry_only=not self.use_segmentation)
 
     def _check_gravity(self, frame: RGBDFrame) -> None:
-        """Feed the gravity check (first frames, when no frame waits); its verdict goes to the map's
-        gravity record."""
+        """Feed the gravity check (first frames only); its verdict goes to the map's gravity record."""
         mon = self.gravity_monitor
-        if mon is None or mon.done or self.queue or self.pending:
-            return  # only with time to spare: never behind a backlog (~70 ms per checked 640x480 frame)
+        if mon is None or mon.done:
+            return
         result = mon.feed(frame.depth, frame.intrinsics, frame.pose)
         if result is None:
             return
@@ -511,9 +512,9 @@ class MapperNode(Node):
         t0 = time.perf_counter()
         fresh = PanopticMapper(self.config, class_metas(self.class_table))  # allocated outside the lock
         with self._service_turn():
+            if self.gravity_monitor is not None and self.gravity_monitor.done:
+                fresh.gravity = dict(self.mapper.gravity)  # the same TF frame: the check stands
             self.mapper = fresh
-            if self.settings.gravity_check:  # a new map: check its first frames again
-                self.gravity_monitor = GravityMonitor(self.gravity_config)
             self.pending.clear()
             self.queue.clear()
             self._changed = True
