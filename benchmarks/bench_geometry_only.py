@@ -15,6 +15,7 @@ Flatness: what the mapper adds to Open3D per frame, over the first and the last 
 Exit status 1 when ours is slower than 1.5x Open3D.
 
     .venv/bin/python benchmarks/bench_geometry_only.py [--scene bench-small] [--frames N] [--repeats 3]
+    .venv/bin/python benchmarks/bench_geometry_only.py --source FOLDER_OR_BAG [--stride 5]   # a real recording
 """
 
 from __future__ import annotations
@@ -31,11 +32,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks.common import write_result
 
 
-def _frames(bag: Path, n: int) -> list:
+def _frames(bag: Path, n: int, stride: int = 1) -> list:
+    from panoptic_mapping.dataio import DataInputConfig
     from panoptic_mapping.dataio.registry import open_dataset
 
     out = []
-    with open_dataset(bag) as loader:
+    with open_dataset(bag, DataInputConfig(stride=stride)) as loader:
         for f in loader:
             if n and len(out) >= n:
                 break
@@ -87,7 +89,7 @@ def interleaved_round(frames: list, cfg) -> dict[str, np.ndarray]:
     return out
 
 
-def pipeline_round(bag: Path, frames: int, cfg) -> tuple[float, float, int]:
+def pipeline_round(bag: Path, frames: int, cfg, stride: int = 1) -> tuple[float, float, int]:
     """`map_recording(bag, None)`, the `--segmenter none` run, with an Open3D integration of each frame
     next to the mapper's (alternating which goes first). Returns (mapper seconds as the run reports them,
     minus the Open3D time inside them; Open3D seconds; frames)."""
@@ -110,7 +112,7 @@ def pipeline_round(bag: Path, frames: int, cfg) -> tuple[float, float, int]:
                 stats = super().integrate_geometry(frame)
             return stats
 
-    _, run = map_recording(bag, None, cfg, DataInputConfig(max_frames=frames), progress=False,
+    _, run = map_recording(bag, None, cfg, DataInputConfig(max_frames=frames, stride=stride), progress=False,
                            mapper=Twin(cfg, class_metas()))
     return run.mapper_s - o3d_s[0], o3d_s[0], run.frames
 
@@ -124,17 +126,23 @@ def main() -> int:
     ap.add_argument("--scene", default="bench-small")
     ap.add_argument("--frames", type=int, default=0, help="limit frames (0: all)")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--source", type=Path, default=None,
+                    help="a recording (bag or frame folder: TUM, 7-Scenes, ScanNet) instead of --scene")
+    ap.add_argument("--stride", type=int, default=1, help="read every N-th frame of the recording")
     args = ap.parse_args()
-    bag, _gt = suite_scene(args.scene, progress=False)
+    if args.source is not None:
+        bag, args.scene = args.source, args.source.name
+    else:
+        bag, _gt = suite_scene(args.scene, progress=False)
     cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml")
     if cfg.downsample != 1:
         raise SystemExit("this benchmark compares at full resolution: set downsample: 1 in config/mapper.yaml")
-    frames = _frames(bag, args.frames)
+    frames = _frames(bag, args.frames, args.stride)
     n = len(frames)
     rounds, pipe_rounds = [], []
     for _ in range(args.repeats):
         rounds.append(interleaved_round(frames, cfg))
-        s, o3d_s, nf = pipeline_round(bag, args.frames, cfg)  # the whole `--segmenter none` pipeline
+        s, o3d_s, nf = pipeline_round(bag, args.frames, cfg, args.stride)  # the whole `--segmenter none` pipeline
         assert nf == n, (nf, n)
         pipe_rounds.append((s, o3d_s))
     # per frame, the best of the rounds: transient load from other processes drops out
@@ -179,7 +187,7 @@ def main() -> int:
           f"{pipe_o3d_ms:.2f} ms ({pipe_ms / pipe_o3d_ms:.2f}x, best round)")
     print(f"  overhead over Open3D per frame: first third {flat['overhead_first_third_ms']:.2f} ms, "
           f"last third {flat['overhead_last_third_ms']:.2f} ms")
-    path = write_result("geometry_only", result)
+    path = write_result("geometry_only" if args.source is None else f"geometry_only_{args.scene}", result)
     print(f"wrote {path}")
     return 0 if ours_ms / o3d_ms <= 1.5 else 1
 

@@ -1,7 +1,8 @@
 """Gravity from depth: which way is up in a recording's world frame, and the rotation that aligns it.
 
 Every stage assumes a gravity-aligned map frame with z up (``recon_core.geometry.gravity``), but
-real recordings often are not: TUM RGB-D's motion-capture world has its "up" 63 deg from +z. This
+real recordings often are not: the 7-Scenes kitchen frames of andyzeng/tsdf-fusion-python have their
+"up" 116.8 deg from +z (docs/REAL_DATA.md). This
 module estimates up from the depth images themselves (ROS-free, numpy + OpenCV):
 
 1. per frame, surface normals of the depth image (box-smoothed central differences, kept only
@@ -84,6 +85,15 @@ class GravityConfig(Settings):
     min_correction_deg: float = setting(1.0, min=0.0, max=90.0)
     #: Warn when the input's up is farther than this (deg) from +z.
     warn_deg: float = setting(5.0, min=0.0, max=180.0)
+    #: auto, refined as the map grows: every `refine_every_n`-th frame integrated after the window
+    #: adds its normals to the window's (0: off). The map cannot turn under way (its voxels are laid
+    #: out in the frame chosen first), so the whole recording's estimate is a check: written to
+    #: map.json (gravity.refined), and when it differs from the applied up by more than
+    #: `refine_warn_deg` a warning and OUT/gravity_refined.txt (pass it with --gravity to map again).
+    refine_every_n: int = setting(30, min=0)
+    #: z: still estimate up from the window and warn past `warn_deg` (the input is not rotated).
+    check_z: bool = True
+    refine_warn_deg: float = setting(2.0, min=0.0, max=180.0)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -344,6 +354,54 @@ def estimate_up(frames: list[tuple[np.ndarray, CameraIntrinsics, np.ndarray]],
     return est.estimate()
 
 
+class GravityMonitor:
+    """Up of a live stream's fixed frame from its first frames, for mappers that cannot rotate their
+    input (the ROS mapper node trusts its TF `map` frame): every ``cfg.stride``-th posed frame
+    ``feed`` gets is added until ``cfg.window_frames`` are in, then the estimate is returned once
+    (``None`` before and after). What it says goes into the map's ``gravity`` record; ``warning`` is
+    set when the frame's +z is more than ``cfg.warn_deg`` from the estimated up."""
+
+    def __init__(self, cfg: GravityConfig | None = None) -> None:
+        self.cfg = cfg or GravityConfig()
+        self.estimator: GravityEstimator | None = GravityEstimator(self.cfg)
+        self.seen = 0
+        self.result: GravityEstimate | None = None
+        self.warning = ""
+
+    @property
+    def done(self) -> bool:
+        return self.estimator is None
+
+    def feed(self, depth: np.ndarray, intrinsics: CameraIntrinsics, pose: np.ndarray | None) -> GravityEstimate | None:
+        est = self.estimator
+        if est is None or pose is None:
+            return None
+        self.seen += 1
+        if (self.seen - 1) % self.cfg.stride:
+            return None
+        est.add_frame(depth, intrinsics, pose)
+        if est.frames < self.cfg.window_frames:
+            return None
+        self.result = est.estimate()
+        self.estimator = None
+        if self.result.ok and self.result.angle_deg > self.cfg.warn_deg:
+            self.warning = (f"the fixed frame's up is {self.result.angle_deg:.1f} deg from its +z (estimated from "
+                            f"the {self.result.method} over {self.result.frames} frames): the map, its boxes, "
+                            "planes and supports assume +z up; make the fixed frame gravity aligned (TF from an "
+                            "IMU or a corrected map frame)")
+        return self.result
+
+    def record(self) -> dict[str, Any]:
+        """The map's ``gravity`` record: the frame is trusted (nothing applied), the check's estimate."""
+        out: dict[str, Any] = {"mode": "tf", "applied": False, "rotation_deg": 0.0, "input_up": [0.0, 0.0, 1.0]}
+        if self.result is not None:
+            out["estimate"] = self.result.as_dict()
+            out["note"] = (self.warning or (f"gravity check: the fixed frame's +z is up (estimate "
+                                            f"{self.result.angle_deg:.1f} deg from it)" if self.result.ok
+                                            else f"gravity check: no estimate ({self.result.reason})"))
+        return out
+
+
 def load_alignment(path: str | Path) -> np.ndarray:
     """A 4x4 (or 3x3) transform input world -> z-up frame from a text (or .npy) file; its rotation
     must be proper (orthonormal, det +1)."""
@@ -389,5 +447,6 @@ def up_of_alignment(transform: np.ndarray) -> np.ndarray:
     return np.asarray(transform, float)[:3, :3].T @ Z_UP
 
 
-__all__ = ["GRAVITY_MODES", "GravityConfig", "GravityEstimate", "GravityEstimator", "alignment_from_estimate",
+__all__ = ["GRAVITY_MODES", "GravityConfig", "GravityEstimate", "GravityEstimator", "GravityMonitor",
+           "alignment_from_estimate",
            "angle_deg", "estimate_up", "frame_normals", "load_alignment", "rotation_to_z"]

@@ -31,6 +31,7 @@ from panoptic_mapping.gravity import (
     angle_deg,
     load_alignment,
     rotation_angle_deg,
+    rotation_to_z,
     up_of_alignment,
 )
 from panoptic_mapping.mapper import ClassMeta, PanopticMapper
@@ -138,6 +139,12 @@ def estimate_gravity(source: str | Path, data_config: DataInputConfig | None = N
                      cfg: GravityConfig | None = None) -> GravityEstimate:
     """Up of a recording's world frame from the depth of its first posed frames (``cfg.window_frames``
     frames, every ``cfg.stride``-th one, within the data input's own start/stride/max_frames)."""
+    return gravity_estimator(source, data_config, cfg).estimate()
+
+
+def gravity_estimator(source: str | Path, data_config: DataInputConfig | None = None,
+                      cfg: GravityConfig | None = None) -> GravityEstimator:
+    """The estimator fed with the window of ``estimate_gravity`` (more frames can be added later)."""
     data_config = data_config or DataInputConfig()
     cfg = cfg or data_config.gravity
     window = cfg.window_frames
@@ -150,22 +157,40 @@ def estimate_gravity(source: str | Path, data_config: DataInputConfig | None = N
         for frame in loader:
             if frame.pose is not None:
                 est.add_frame(frame.depth, frame.intrinsics, frame.pose)
-    return est.estimate()
+    return est
 
 
 def resolve_gravity(source: str | Path, data_config: DataInputConfig | None = None,
                     cfg: GravityConfig | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """The transform input world -> gravity-aligned map frame for ``cfg.mode`` (auto | z | a file), and
     what was done (for map.json / summary.json): mode, the input's up, the angle corrected, a note."""
+    transform, info, _est = _resolve_gravity(source, data_config, cfg)
+    return transform, info
+
+
+def _resolve_gravity(source: str | Path, data_config: DataInputConfig | None = None,
+                     cfg: GravityConfig | None = None
+                     ) -> tuple[np.ndarray, dict[str, Any], GravityEstimator | None]:
+    """``resolve_gravity`` and, in auto mode, the estimator (to be refined as the map grows)."""
     data_config = data_config or DataInputConfig()
     cfg = cfg or data_config.gravity
     mode = cfg.mode or "auto"
     info: dict[str, Any] = {"mode": mode}
+    estimator: GravityEstimator | None = None
     if mode == "z":
         transform = np.eye(4)
         info["note"] = "gravity z: the input's +z is taken as up"
+        if cfg.check_z:  # trusted, but checked: a wrong --gravity z must not pass silently
+            est = estimate_gravity(source, data_config, cfg)
+            info["estimate"] = est.as_dict()
+            if est.ok and est.angle_deg > cfg.warn_deg:
+                info["note"] += f" (but its up is estimated {est.angle_deg:.1f} deg from +z, from the {est.method})"
+                log.warning("gravity z: the input's +z is taken as up, but the depth says up is %.1f deg from it "
+                            "(estimated from the %s): boxes, planes and supports will be tilted; --gravity auto "
+                            "rotates the map", est.angle_deg, est.method)
     elif mode == "auto":
-        est = estimate_gravity(source, data_config, cfg)
+        estimator = gravity_estimator(source, data_config, cfg)
+        est = estimator.estimate()
         transform, note = alignment_from_estimate(est, cfg)
         info["estimate"] = est.as_dict()
         info["note"] = note
@@ -186,7 +211,32 @@ def resolve_gravity(source: str | Path, data_config: DataInputConfig | None = No
     info["applied"] = not np.allclose(transform, np.eye(4))
     info["rotation_deg"] = round(rotation_angle_deg(transform), 3)
     info["input_up"] = [round(float(v), 6) for v in up]
-    return transform, info
+    return transform, info, estimator
+
+
+def _refine_gravity(mapper: PanopticMapper, est: GravityEstimator, cfg: GravityConfig, added: int,
+                    seconds: float) -> None:
+    """The whole recording's estimate against the applied up, into ``mapper.gravity["refined"]``."""
+    refined = est.estimate()
+    out: dict[str, Any] = {"frames_added": added, "frames": refined.frames, "ok": refined.ok,
+                           "seconds": round(seconds, 3)}
+    if not refined.ok:
+        out["reason"] = refined.reason
+    else:
+        applied = np.asarray(mapper.gravity.get("input_up", [0.0, 0.0, 1.0]), float)
+        residual = angle_deg(refined.up, applied)
+        transform = np.eye(4)
+        transform[:3, :3] = rotation_to_z(refined.up)
+        out.update({"method": refined.method, "up_in_input": [round(float(v), 6) for v in refined.up],
+                    "residual_deg": round(residual, 3), "alignment": transform.tolist(),
+                    "suggest_file": residual > cfg.refine_warn_deg})
+        if residual > cfg.refine_warn_deg:
+            log.warning("gravity: the estimate over the whole recording (%d frames) is %.1f deg from the up "
+                        "applied (first %d frames): the map may be tilted; map again with --gravity "
+                        "OUT/gravity_refined.txt", refined.frames, residual, refined.frames - added)
+        else:
+            log.info("gravity refined over %d frames: %.2f deg from the up applied", refined.frames, residual)
+    mapper.gravity["refined"] = out
 
 
 def _choose_origin(mapper: PanopticMapper, pose: np.ndarray, recentre_beyond_m: float) -> None:
@@ -217,6 +267,12 @@ def _integrate_or_skip(mapper: PanopticMapper, frame: Any, masks: PanopticMasks 
         run.failed_frames += 1
         run.failures[msg] = run.failures.get(msg, 0) + 1
         return None
+
+
+def frames_to_read(available: int, data_config: DataInputConfig) -> int:
+    """How many of ``available`` frames `--start`/`--stride`/`--max-frames` select (the progress total)."""
+    n = len(range(max(data_config.start, 0), available, max(data_config.stride, 1)))
+    return min(n, data_config.max_frames) if data_config.max_frames else n
 
 
 def map_recording(
@@ -267,10 +323,15 @@ def map_recording(
         checkpointer.start(mapper.frames_integrated)
     t_start = time.perf_counter()
     data_config = data_config or DataInputConfig()
+    gcfg = gravity or data_config.gravity
+    refiner: GravityEstimator | None = None
     if not mapper.frames_integrated and not mapper.gravity:
-        transform, info = resolve_gravity(source, data_config, gravity or data_config.gravity)
+        transform, info, refiner = _resolve_gravity(source, data_config, gcfg)
         mapper.set_alignment(transform, info)
         log.info("%s", info["note"])
+    refine_n = gcfg.refine_every_n if refiner is not None else 0
+    window_reads = gcfg.window_frames * gcfg.stride  # frames the window already covered
+    refine_added, refine_s = 0, 0.0
     last_stamp: int | None = (resume.progress.get("last_timestamp_ns") if resume is not None else None)
 
     def checkpoint() -> None:
@@ -282,7 +343,7 @@ def map_recording(
         run.checkpoint_s += checkpointer.last_cost_s
 
     with open_dataset(source, data_config) as loader:
-        total = len(loader) if hasattr(loader, "__len__") else None
+        total = frames_to_read(len(loader), data_config) if hasattr(loader, "__len__") else None
         frames = iter(loader)
         bar = tqdm(total=total, desc="mapping", unit="frame", disable=not progress)
         read = 0
@@ -331,6 +392,11 @@ def map_recording(
                 run.stage_ms[k] = run.stage_ms.get(k, 0.0) + v
             run.frames += 1
             run.poses.append(mapper.local_pose(frame.pose))
+            if refiner is not None and refine_n and read > window_reads and run.frames % refine_n == 0:
+                t3 = time.perf_counter()
+                refiner.add_frame(frame.depth, frame.intrinsics, frame.pose)
+                refine_added += 1
+                refine_s += time.perf_counter() - t3
             log.debug("frame %d of the recording integrated", read)
             if checkpointer is not None and checkpointer.due(mapper.frames_integrated):
                 checkpoint()
@@ -349,6 +415,8 @@ def map_recording(
                 raise MappingFailed(f"{source}: all {run.failed_frames} frames failed in the mapper "
                                     f"(most often: {first}); run with -v for each frame's error")
             raise DatasetError(explain_empty(loader, source))
+    if refiner is not None and refine_added:
+        _refine_gravity(mapper, refiner, gcfg, refine_added, refine_s)
     run.origin_offset_m = [float(v) for v in mapper.origin_offset]
     run.keyframes = mapper.keyframes
     run.wall_s = time.perf_counter() - t_start
@@ -365,6 +433,14 @@ def write_map_outputs(out: str | Path, mapper: PanopticMapper, run: MappingRun,
     extract_s = time.perf_counter() - t0
     save_entities(ents, out)
     mapper.save(out)
+    refined = mapper.gravity.get("refined", {})
+    suggestion = out / "gravity_refined.txt"
+    if refined.get("suggest_file"):
+        np.savetxt(suggestion, np.asarray(refined["alignment"]), fmt="%.9f",
+                   header=f"input world -> z up, estimated over {refined['frames']} frames "
+                          f"({refined['residual_deg']:.2f} deg from the alignment this map used)")
+    elif suggestion.exists():
+        suggestion.unlink()  # from an earlier run into the same folder: not this map's
     per_class: dict[str, int] = {}
     for e in ents:
         per_class[e.class_name] = per_class.get(e.class_name, 0) + 1

@@ -55,12 +55,14 @@ from visualization_msgs.msg import MarkerArray
 
 from panoptic_mapping.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointStore
 from panoptic_mapping.config import MapperConfig
+from panoptic_mapping.dataio import DataInputConfig
 from panoptic_mapping.dataio.transforms import TransformLookupError
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
+from panoptic_mapping.gravity import GravityMonitor
 from panoptic_mapping.mapper import MapSnapshot, PanopticMapper
 from panoptic_mapping.pipeline import class_metas
 from recon_core.classes import load_class_table
-from recon_core.config import CONFIG_DIR, Settings, setting
+from recon_core.config import CONFIG_DIR, Settings, load_config, setting
 from recon_core.errors import CheckpointError, SceneReconError
 from recon_core.frame import DatasetError, RGBDFrame
 from recon_core.paths import confined_path
@@ -118,6 +120,12 @@ class MapperNodeConfig(Settings):
     resume: bool = setting(False, doc="start from the newest good checkpoint in <data_root>/checkpoints")
     status_period_s: float = setting(10.0, min=0.0, min_exclusive=True,
                                      doc="period (s) of the status log line and the mapper_status topic")
+    gravity_check: bool = setting(True, doc="estimate up from the depth of the first frames (gravity.* of "
+                                  "config/data.yaml) and warn when the TF map frame's +z is not up; the node "
+                                  "trusts its map frame (it does not rotate it)")
+    gravity_window_frames: int = setting(0, min=0, doc="frames the gravity check reads (0: gravity.window_frames "
+                                         "of config/data.yaml)")
+    gravity_stride: int = setting(0, min=0, doc="every n-th frame goes to the gravity check (0: gravity.stride)")
 
 
 class MapperNode(Node):
@@ -139,6 +147,12 @@ class MapperNode(Node):
         self.class_table = load_class_table(settings.class_table) if settings.class_table else None
         self.data_root = Path(settings.data_root).expanduser().resolve()
         self.mapper = PanopticMapper(self.config, class_metas(self.class_table))
+        self.gravity_config = gcfg = load_config(DataInputConfig, CONFIG_DIR / "data.yaml").gravity
+        gcfg.window_frames = settings.gravity_window_frames or gcfg.window_frames
+        gcfg.stride = settings.gravity_stride or gcfg.stride
+        # cheaper than the CLI's (it runs inside the integration loop): a quarter of the pixels
+        gcfg.downsample, gcfg.samples_per_frame = max(gcfg.downsample, 4), min(gcfg.samples_per_frame, 1500)
+        self.gravity_monitor = GravityMonitor(self.gravity_config) if settings.gravity_check else None
         # the map is guarded by `lock`; a service waiting for it makes the integration loop step
         # aside (`_services_waiting`), so a service answers within one frame's integration time
         self.lock = threading.Lock()
@@ -210,6 +224,7 @@ class MapperNode(Node):
             self.get_logger().warning(f"resume: {why}; using the older checkpoint {ckpt.path}")
         self.mapper = ckpt.mapper
         self.checkpoint_frames = self.mapper.frames_integrated
+        self.gravity_monitor = None  # the resumed map keeps its record
         assert self.checkpointer is not None
         self.checkpointer.start(self.mapper.frames_integrated)
         self.get_logger().info(f"resumed from checkpoint {ckpt.path} ({self.mapper.frames_integrated} frames)")
@@ -328,6 +343,7 @@ class MapperNode(Node):
         self.queue.popleft()
         if frame is None:
             return
+        self._check_gravity(frame)
         if self.mapper.is_keyframe(frame):
             if not self.use_segmentation:
                 self.mapper.mark_keyframe(frame)
@@ -345,6 +361,20 @@ class MapperNode(Node):
                                           throttle_duration_sec=10.0)
         # without segmentation no label is ever fused: the TSDF-only path (no depth segmentation)
         self._integrate(frame, None, geometry_only=not self.use_segmentation)
+
+    def _check_gravity(self, frame: RGBDFrame) -> None:
+        """Feed the gravity check (first frames only); its verdict goes to the map's gravity record."""
+        mon = self.gravity_monitor
+        if mon is None or mon.done:
+            return
+        result = mon.feed(frame.depth, frame.intrinsics, frame.pose)
+        if result is None:
+            return
+        self.mapper.gravity = mon.record()
+        if mon.warning:
+            self.get_logger().warning(mon.warning)
+        else:
+            self.get_logger().info(self.mapper.gravity.get("note", ""))
 
     def _collect_segmentations(self) -> None:
         still = []
@@ -471,7 +501,8 @@ class MapperNode(Node):
                 "last_checkpoint": str(cp.last_path) if cp and cp.last_path else "",
                 "last_checkpoint_s": round(cp.last_cost_s, 3) if cp else 0.0,
                 # frames in the newest checkpoint written: what a restarted (resume:=true) mapper starts from
-                "checkpoint_frames": self.checkpoint_frames}
+                "checkpoint_frames": self.checkpoint_frames,
+                "gravity": self.mapper.gravity.get("note", "")}
 
     def _report(self) -> None:
         status = self.status()
@@ -546,6 +577,7 @@ class MapperNode(Node):
             mapper = PanopticMapper.load(folder)  # read outside the lock: mapping goes on meanwhile
             with self._service_turn():
                 self.mapper = mapper
+                self.gravity_monitor = None  # the loaded map keeps its gravity record
                 self.pending.clear()
                 self._changed = True
                 if self.checkpointer is not None:  # the next checkpoint interval counts from the loaded map
@@ -564,6 +596,8 @@ class MapperNode(Node):
         t0 = time.perf_counter()
         fresh = PanopticMapper(self.config, class_metas(self.class_table))  # allocated outside the lock
         with self._service_turn():
+            if self.gravity_monitor is not None and self.gravity_monitor.done:
+                fresh.gravity = dict(self.mapper.gravity)  # the same TF frame: the check stands
             self.mapper = fresh
             self.pending.clear()
             self.queue.clear()

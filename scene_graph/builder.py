@@ -249,7 +249,9 @@ class ContactGraphBuilder:
         refined = {}
         for f in feats:
             d = support.decisions[f.id]
-            refined[f.id] = refine_box(f.box, d, cfg.refine)
+            info = class_info(f.node_class.class_name, cfg.class_table)
+            tallest = cfg.geometric_layout.size_factor * info.max_size_m if info and info.max_size_m else None
+            refined[f.id] = refine_box(f.box, d, cfg.refine, tallest)
             parent_class = graph_class(nodes_by_id, d.parent_id)
             joint = self.joints.resolve(parent_class, f.node_class.class_name, f.node_class.movable,
                                         f.category == LAYOUT)

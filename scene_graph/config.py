@@ -108,6 +108,11 @@ class GeometricLayoutConfig(Settings):
     wall_min_area: float = setting(0.75, min=0.0)
     wall_min_length: float = setting(0.5, min=0.0)
     wall_min_height: float = setting(1.0, min=0.0)
+    #: ... or a wall seen only above the furniture in front of it (a kitchen's tiles above the
+    #: counter): at least this area and height, its top at least wall_strip_min_top above the floor.
+    wall_strip_min_area: float = setting(0.5, min=0.0)
+    wall_strip_min_height: float = setting(0.3, min=0.0)
+    wall_strip_min_top: float = setting(1.2, min=0.0)
     #: ... with at most this share of the map's surface area more than wall_outside_margin beyond it.
     wall_outside_share: float = setting(0.05, min=0.0, max=1.0)
     wall_outside_margin: float = setting(0.15, min=0.0)

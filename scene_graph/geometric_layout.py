@@ -10,13 +10,18 @@ paper (its segmenter has layout classes). Two steps, both in the gravity-aligned
   horizontal or vertical planar part (``layout_planes``) much larger than its class can be
   (``max_size_m`` of ``config/classes.yaml`` times ``size_factor``) and a real share of its area
   has swallowed floor or wall (a mask bleeding onto the wall behind a chair): that part leaves the
-  thing and joins the unlabelled surface.
+  thing and joins the unlabelled surface. A thing that is itself larger than its class can be gives
+  up its large vertical planar parts too, all but its largest part, however short each is (a table
+  box over the cabinet fronts of an L-shaped kitchen counter behind it: two fronts of 2.1 and 1.7 m,
+  each shorter than a table, made a 4.1 m "table" on real frames).
 * ``layout_from_geometry``: in the unlabelled surface, horizontal faces are grouped by height
   (area-weighted modes): the **floor** is the lowest large group (its faces within ``thickness``
   above and below: both faces of a slab), the **ceiling** the highest large group at least
   ``ceiling_min_height`` above the floor and ``ceiling_min_floor_share`` of the floor's area. The
   rest is split into vertical planar parts (``layout.wall_parts``); a part is a **wall** when it is
-  large (``wall_min_area``, ``wall_min_height`` tall) and bounds the room: at most
+  large (``wall_min_area``, ``wall_min_height`` tall; or a strip seen above the furniture in front of
+  it: ``wall_strip_min_area``, ``wall_strip_min_height`` tall, its top ``wall_strip_min_top`` above
+  the floor, as a kitchen's tiles above the counter) and bounds the room: at most
   ``wall_outside_share`` of all the map's surface lies more than ``wall_outside_margin`` beyond
   it (a cabinet front has the wall behind it; a wall has nothing).
 
@@ -131,8 +136,17 @@ def give_up_layout_planes(entity: Entity, max_size_m: float,
     _c, _n, area = _faces(entity)
     total = float(area.sum())
     give = np.zeros(len(entity.faces), bool)
-    for p in layout_planes(entity, cfg):
-        if p.extent > cfg.size_factor * max_size_m and p.area >= cfg.give_up_min_share * total:
+    parts = layout_planes(entity, cfg)
+    limit = cfg.size_factor * max_size_m
+    # a thing larger than its class can be that holds several large planar parts: its vertical ones
+    # other than its largest part are surface its mask bled onto (a table's box over the cabinet
+    # fronts behind it: each front shorter than a table, together with the table 4 m long)
+    oversized = _extent(entity.vertices[:, :2]) > limit
+    largest = max((p.area for p in parts), default=0.0)
+    for p in parts:
+        if p.area < cfg.give_up_min_share * total:
+            continue
+        if p.extent > limit or (oversized and p.kind == "vertical" and p.area < largest):
             give |= p.mask
     if not give.any() or give.all():
         return entity, None
@@ -157,6 +171,7 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
     groups = height_groups(centroid[flat, 2], area[flat], cfg.floor_min_area, cfg.plane_thickness)
     out: dict[str, Entity] = {}
     used = np.zeros(len(area), bool)
+    z_floor: float | None = None
     if groups:
         largest = max(a for _h, a in groups)
         big = sorted((h, a) for h, a in groups if a >= cfg.floor_min_share * largest)
@@ -176,7 +191,9 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
     rest_idx = np.flatnonzero(~used)
     if len(rest_idx):
         rest = sub_entity(surface, ~used)
-        wcfg = replace(layout, min_area=cfg.wall_min_area, min_length=cfg.wall_min_length)
+        strips = z_floor is not None and cfg.wall_strip_min_area < cfg.wall_min_area
+        wcfg = replace(layout, min_area=cfg.wall_strip_min_area if strips else cfg.wall_min_area,
+                       min_length=cfg.wall_min_length)
         masks, _dropped = wall_parts(rest, wcfg)
         ctx_c, ctx_a = _context_faces([surface, *context])
         keep = np.zeros(len(rest.faces), bool)
@@ -188,7 +205,13 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
             u = _wall_normal(rn[vert], ra[vert])
             s0 = float(np.average(rc[vert] @ u, weights=np.maximum(ra[vert], 1e-12)))
             zs = rest.vertices[np.unique(rest.faces[vert])][:, 2]
-            if float(np.ptp(zs)) < cfg.wall_min_height:
+            part_area = float(ra[m].sum())
+            large = part_area >= cfg.wall_min_area and float(np.ptp(zs)) >= cfg.wall_min_height
+            # a wall seen only above the furniture in front of it: a high strip
+            strip = (z_floor is not None and part_area >= cfg.wall_strip_min_area
+                     and float(np.ptp(zs)) >= cfg.wall_strip_min_height
+                     and float(zs.max()) >= z_floor + cfg.wall_strip_min_top)
+            if not (large or strip):
                 continue
             d = ctx_c @ u - s0
             margin = cfg.wall_outside_margin

@@ -236,9 +236,11 @@ class SupportInference:
             if dists[k] <= cfg.wall_distance:
                 return SupportDecision(child.id, walls[k], "fallback_wall", 0.0, 0.0, float(dists[k]), None)
         if floor is not None:
-            plane = self._floor_plane(floor, bottom + cfg.above_tolerance)
+            # the last resort: a parent for the tree, but no contact: no plane, so box refinement does
+            # not stretch an object floating over an unmapped support (a microwave on a kitchen
+            # counter left unlabelled) down to the floor
             return SupportDecision(child.id, floor, "fallback_floor", 0.0, 0.0, bottom - self.nodes[floor].box.z_max,
-                                   plane)
+                                   None)
         return SupportDecision(child.id, ROOT_ID, "fallback_root")
 
     # ------------------------------------------------------------------ main loop

@@ -362,7 +362,7 @@ class SevenScenesLoader(_FolderLoader):
                 entries.append((k * self.frame_period_ns, cpath, dpath, _read_pose_file(ppath, self.skips)))
                 k += 1
         if not entries:
-            raise DatasetError(f"{self.path}: no frame-XXXXXX.color.png with a matching depth PNG")
+            raise DatasetError(f"{self.path}: no frame-XXXXXX.color.png/.jpg with a matching depth PNG")
         if all(e[3] is None for e in entries):
             self.notes.append(f"{self.path}: no usable frame-XXXXXX.pose.txt beside the frames")
         return entries

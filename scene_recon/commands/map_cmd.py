@@ -239,6 +239,8 @@ def run(args: argparse.Namespace) -> int:
     ents, summary = write_map_outputs(args.out, mapper, run_stats, extra=run_info)
     out = Path(args.out)
     written = ["entities.json", "meshes/", "map.npz", "map.json", "summary.json"]
+    if mapper.gravity.get("refined", {}).get("suggest_file"):
+        written.append("gravity_refined.txt")
     if checkpointer is not None and checkpointer.saved:
         written.append(f"{CHECKPOINT_DIR}/")
     try:

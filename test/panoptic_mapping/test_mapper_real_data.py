@@ -128,3 +128,26 @@ def test_far_away_poses_are_recentred_on_the_first_pose(tmp_path, caplog):
     # without recentring the mapper refuses such poses instead of building a collapsed map
     with pytest.raises(MappingFailed, match="km from the map origin"):
         map_recording(tmp_path / "far", None, progress=False, recentre_beyond_m=0)
+
+
+def test_the_progress_total_counts_the_frames_stride_and_max_frames_select(tmp_path, monkeypatch):
+    """`map --stride 5` on 1000 frames showed a bar to 1000 that stopped at 200."""
+    import tqdm
+
+    from panoptic_mapping.dataio import DataInputConfig
+    from panoptic_mapping.pipeline import frames_to_read
+
+    _recording(tmp_path / "rec")  # 5 frames
+    totals = []
+    real = tqdm.tqdm
+
+    def spy(*args, **kwargs):
+        totals.append(kwargs.get("total"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(tqdm, "tqdm", spy)
+    _mapper, run = map_recording(tmp_path / "rec", None, data_config=DataInputConfig(stride=2), progress=False)
+    assert run.frames == 3 and totals == [3]
+    assert frames_to_read(1000, DataInputConfig(stride=5)) == 200
+    assert frames_to_read(1000, DataInputConfig(start=3, stride=5, max_frames=50)) == 50
+    assert frames_to_read(10, DataInputConfig(start=12)) == 0

@@ -43,7 +43,8 @@ def test_mapper_node_maps_a_bag_with_the_segmentation_service(tmp_path):
                           "-p", f"oracle.ground_truth:={summary['ground_truth']}", "-p", "oracle.level:=clean"],
                          env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
         subprocess.Popen([py, "-m", "ros_nodes.mapper_node", "--ros-args", "-p", f"config_file:={mapper_cfg}",
-                          "-p", "publish_period_s:=1.0", "-p", f"data_root:={tmp_path}"],
+                          "-p", "publish_period_s:=1.0", "-p", f"data_root:={tmp_path}",
+                          "-p", "gravity_window_frames:=4", "-p", "gravity_stride:=2"],
                          env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
     ]
     rclpy.init()
@@ -76,6 +77,12 @@ def test_mapper_node_maps_a_bag_with_the_segmentation_service(tmp_path):
         logs = [p.communicate(timeout=20)[0] for p in procs]
     assert res is not None and res.success, ("extract_entities did not answer", [log[-3000:] for log in logs])
     assert saved is not None and saved.success and (tmp_path / "saved" / "map.npz").is_file()
+    # the gravity check of the first frames: the generated world is z up, the TF map frame trusted
+    import json
+
+    gravity = json.loads((tmp_path / "saved" / "map.json").read_text())["gravity"]
+    assert gravity["mode"] == "tf" and not gravity["applied"] and gravity["estimate"]["ok"], gravity
+    assert gravity["estimate"]["angle_from_z_deg"] < 2.0 and "+z is up" in gravity["note"]
     ents = [msg_to_entity(m) for m in res.entities.entities]
     seen_classes = {e.class_name for e in gt.entities if e.visible_pixels > 2000}
     mapped = {e.class_name for e in ents if e.class_id >= 0}  # (entity 0 = unclaimed surface, class -1)

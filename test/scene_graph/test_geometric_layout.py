@@ -146,6 +146,34 @@ def test_the_wall_a_chair_gave_up_becomes_a_wall_node_of_an_unlabelled_map():
     assert g.nodes[g.parent(7)].class_name == "floor"
 
 
+def table_with_cabinet_fronts(fronts: bool = True) -> trimesh.Trimesh:
+    """A 2.2 m x 1.0 m table top at 0.75 m whose mask bled onto the fronts of an L-shaped kitchen
+    counter behind it (0.9 m tall, 2.1 m and 1.8 m long: each shorter than a table can be)."""
+    parts = [patch([-1.0, -0.5, 0.75], [2.2, 0, 0], [0, 1.0, 0], 44, 20)]
+    if fronts:
+        parts += [patch([-2.1, 1.0, 0.0], [2.1, 0, 0], [0, 0, 0.9], 42, 18),
+                  patch([-2.1, -0.8, 0.0], [0, 1.8, 0], [0, 0, 0.9], 36, 18)]
+    return trimesh.util.concatenate(parts)
+
+
+def test_an_oversized_table_gives_up_the_cabinet_fronts_its_mask_bled_onto():
+    table = Entity.from_mesh(3, "table_3", "table", table_with_cabinet_fronts(), class_id=10)
+    kept, given = give_up_layout_planes(table, 2.0, GeometricLayoutConfig())
+    assert given is not None
+    assert np.ptp(kept.vertices[:, 0]) == pytest.approx(2.2, abs=0.01)
+    assert np.ptp(kept.vertices[:, 1]) == pytest.approx(1.0, abs=0.01)
+    assert np.allclose(kept.vertices[:, 2], 0.75)
+    assert kept.mesh().area == pytest.approx(2.2, rel=0.01)
+    assert given.mesh().area == pytest.approx(2.1 * 0.9 + 1.8 * 0.9, rel=0.01)
+    # the table alone keeps everything; so does one no larger than a table can be with one front
+    clean = Entity.from_mesh(3, "table_3", "table", table_with_cabinet_fronts(False), class_id=10)
+    assert give_up_layout_planes(clean, 2.0, GeometricLayoutConfig())[1] is None
+    short = trimesh.util.concatenate([patch([-1.0, -0.5, 0.75], [2.2, 0, 0], [0, 1.0, 0], 44, 20),
+                                      patch([-1.0, 0.5, 0.0], [0, 0, 0.75], [2.2, 0, 0], 18, 44)])
+    assert give_up_layout_planes(Entity.from_mesh(3, "t", "table", short, class_id=10), 2.0,
+                                 GeometricLayoutConfig())[1] is None
+
+
 def test_a_sofa_keeps_its_own_back_and_seat():
     sofa = trimesh.util.concatenate([box([0, 0, 0.0], [2.2, 0.9, 0.45]), box([0, 0.7, 0.45], [2.2, 0.9, 0.9])])
     e = Entity.from_mesh(5, "sofa_5", "sofa", sofa)
@@ -176,3 +204,25 @@ def test_concat_entities_keeps_face_indices_valid():
     a = Entity.from_mesh(1, "a", "unknown", box([0, 0, 0], [1, 1, 1]))
     c = concat_entities(a, [Entity.from_mesh(2, "b", "unknown", box([2, 0, 0], [3, 1, 1]))])
     assert len(c.faces) == 24 and c.faces.max() == len(c.vertices) - 1 and c.id == 1
+
+
+def test_a_wall_seen_only_above_a_counter_is_a_wall():
+    """A kitchen's left wall showed only as its tiles above the counter (0.5 m tall, 0.7 m^2) on real
+    frames: too small for a wall, yet it bounds the room and rises 1.4 m above the floor."""
+    floor = patch([-2, -1.5, 0], [4, 0, 0], [0, 3, 0], 40, 30)
+    north = patch(WALLS["north"][0], WALLS["north"][1], [0, 0, 2.5])
+    strip = patch([-2, -1.0, 0.9], [0, 1.2, 0], [0, 0, 0.6], 24, 12)  # 0.72 m^2, 0.9-1.5 m
+    counter = [patch([-2, -1.0, 0.9], [0.6, 0, 0], [0, 1.2, 0], 12, 24),  # top
+               patch([-1.4, -1.0, 0.0], [0, 1.2, 0], [0, 0, 0.9], 24, 18)]  # front (a wall behind it)
+    g = build_contact_graph([unknown([floor, north, strip, *counter])])
+    walls = sorted((n for n in g.nodes.values() if n.class_name == "wall"), key=lambda n: n.box.center[0])
+    assert len(walls) == 2
+    west = walls[0]
+    assert west.box.center[0] == pytest.approx(-2.0, abs=0.1) and west.box.z_min == pytest.approx(0.9, abs=0.05)
+    assert west.box.size.max() == pytest.approx(1.2, abs=0.05)  # the strip only, not the counter front
+    # without strips (their thresholds at the wall's): the north wall alone
+    cfg = SceneGraphConfig()
+    cfg.geometric_layout.wall_strip_min_area = cfg.geometric_layout.wall_min_area
+    cfg.geometric_layout.wall_strip_min_height = cfg.geometric_layout.wall_min_height
+    assert sum(n.class_name == "wall" for n in build_contact_graph([unknown([floor, north, strip, *counter])],
+                                                                   cfg).nodes.values()) == 1

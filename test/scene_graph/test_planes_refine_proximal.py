@@ -115,3 +115,20 @@ def test_proximal_excludes_support_pairs(room):
         assert parent.get(a) != b and parent.get(b) != a
     assert (2, 3) in g.proximal  # the two walls meet in a corner
     assert (4, 5) not in g.proximal  # table and cup: a support pair
+
+
+def test_refinement_never_makes_a_box_taller_than_its_class_can_be(entity):
+    """A microwave 0.8 m above the floor, accepted on it for want of its (unlabelled) counter, became
+    1.2 m tall on real frames; a table seen as its top only still reaches down to the floor."""
+    box = GravityBox([0, 0, 1.0], [0.5, 0.35, 0.35], 0.0)  # 0.83-1.18 m
+    d = SupportDecision(5, 1, "support", 0.21, 1.0, 0.83, _plane(0.0))
+    assert refine_box(box, d, RefineConfig(), max_height=0.75) is box
+    assert refine_box(box, d, RefineConfig(), max_height=1.5).z_min == pytest.approx(0.0)
+    ents = [entity(1, "floor", [([-2, -2, -0.05], [2, 2, 0])]),
+            entity(2, "table", [([0, 0, 0.70], [1.4, 0.8, 0.75])]),
+            entity(3, "microwave", [([1.8, 0, 0.55], [2.3, 0.35, 0.85])])]
+    g = build_contact_graph(ents)
+    assert g.supports[2].parent_id == 1 and g.nodes[2].box.z_min == pytest.approx(0.0)  # table top: completed
+    mw = g.nodes[3]
+    assert g.supports[3].parent_id == 1  # the floor, 0.55 m below
+    assert mw.box.z_min == pytest.approx(0.55) and mw.box.size[2] == pytest.approx(0.30)  # microwave <= 0.75 m
