@@ -69,6 +69,11 @@ def test_player_publishes_bag_frames(tmp_path):
         while time.monotonic() < deadline and min(len(v) for v in got.values()) < N:
             rclpy.spin_once(node, timeout_sec=0.05)
         out, _ = player.communicate(timeout=30)
+        # what arrived while we waited for the player to exit is taken now (a loaded machine delivered
+        # the last /clock sample after the loop above had stopped spinning)
+        drain = time.monotonic() + 1.0
+        while time.monotonic() < drain:
+            rclpy.spin_once(node, timeout_sec=0.01)
     finally:
         if player.poll() is None:
             player.kill()
@@ -145,6 +150,11 @@ def test_player_clock_start_offset_rate_and_pause(tmp_path):
         while time.monotonic() < deadline and len(frames) < N - 4:
             rclpy.spin_once(node, timeout_sec=0.01)
         out, _ = player.communicate(timeout=30)
+        # what arrived while we waited for the player to exit is taken now (a loaded machine delivered
+        # the last /clock sample after the loop above had stopped spinning)
+        drain = time.monotonic() + 1.0
+        while time.monotonic() < drain:
+            rclpy.spin_once(node, timeout_sec=0.01)
     finally:
         if player.poll() is None:
             player.kill()
