@@ -203,9 +203,10 @@ class MapperNode(Node):
         # entity messages by (id, revision, with mesh): unchanged entities are not converted again
         self._msg_cache: dict[tuple[int, int, bool], object] = {}
         steady_timer(self, 0.01, self._process, self.map_group)
-        # publishing converts meshes to messages outside the map's lock, on a group of its own: frames keep
-        # integrating meanwhile (the extraction itself holds the lock)
-        steady_timer(self, self.publish_period_s, self._publish, MutuallyExclusiveCallbackGroup())
+        # publishing shares the map group with integration: run beside it (its own group) the mesh-to-message
+        # conversion competed for the interpreter with integration and the services, and service answers
+        # under load went from < 1 s to 2-6 s (test_node_faults); its duty cycle is capped (PUBLISH_DUTY)
+        steady_timer(self, self.publish_period_s, self._publish, self.map_group)
         steady_timer(self, settings.status_period_s, self._report, inputs)
         self.get_logger().info(f"data root {self.data_root}; checkpoints "
                                + (f"every {self.config.checkpoint.every_n_frames} frames / "
