@@ -384,22 +384,40 @@ class GravityMonitor:
             return None
         self.result = est.estimate()
         self.estimator = None
-        if self.result.ok and self.result.angle_deg > self.cfg.warn_deg:
-            self.warning = (f"the fixed frame's up is {self.result.angle_deg:.1f} deg from its +z (estimated from "
-                            f"the {self.result.method} over {self.result.frames} frames): the map, its boxes, "
-                            "planes and supports assume +z up; make the fixed frame gravity aligned (TF from an "
-                            "IMU or a corrected map frame)")
+        self.warning = self._warning_for(self.result)
         return self.result
 
     def record(self) -> dict[str, Any]:
-        """The map's ``gravity`` record: the frame is trusted (nothing applied), the check's estimate."""
+        """The map's ``gravity`` record: the frame is trusted (nothing applied), the check's estimate.
+
+        Asked before the window is full (a save or an extraction early in the stream, a short bag, or
+        frames lost under load) it reports a provisional estimate from the frames read so far and
+        keeps collecting: a map saved from a short stream still says whether its +z is up."""
         out: dict[str, Any] = {"mode": "tf", "applied": False, "rotation_deg": 0.0, "input_up": [0.0, 0.0, 1.0]}
-        if self.result is not None:
-            out["estimate"] = self.result.as_dict()
-            out["note"] = (self.warning or (f"gravity check: the fixed frame's +z is up (estimate "
-                                            f"{self.result.angle_deg:.1f} deg from it)" if self.result.ok
-                                            else f"gravity check: no estimate ({self.result.reason})"))
+        result, provisional = self.result, False
+        if result is None and self.estimator is not None:
+            if self.estimator.frames == 0:
+                out["note"] = "gravity check: no posed frame read yet"
+                return out
+            result, provisional = self.estimator.estimate(), True
+        if result is not None:
+            out["estimate"] = result.as_dict()
+            out["provisional"] = provisional
+            warning = self.warning or self._warning_for(result)
+            out["note"] = (warning or (f"gravity check: the fixed frame's +z is up (estimate "
+                                       f"{result.angle_deg:.1f} deg from it)" if result.ok
+                                       else f"gravity check: no estimate ({result.reason})"))
+            if provisional:
+                out["note"] += f" [provisional: {result.frames} of {self.cfg.window_frames} frames read]"
         return out
+
+    def _warning_for(self, result: GravityEstimate) -> str:
+        if not (result.ok and result.angle_deg > self.cfg.warn_deg):
+            return ""
+        return (f"the fixed frame's up is {result.angle_deg:.1f} deg from its +z (estimated from "
+                f"the {result.method} over {result.frames} frames): the map, its boxes, "
+                "planes and supports assume +z up; make the fixed frame gravity aligned (TF from an "
+                "IMU or a corrected map frame)")
 
 
 def load_alignment(path: str | Path) -> np.ndarray:

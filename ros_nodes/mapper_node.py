@@ -363,6 +363,14 @@ class MapperNode(Node):
         # without segmentation no label is ever fused: the TSDF-only path (no depth segmentation)
         self._integrate(frame, None, geometry_only=not self.use_segmentation)
 
+    def _snapshot(self) -> MapSnapshot:
+        """A copy of the map to write (caller holds the map's turn); a gravity check still short of its
+        window puts its provisional estimate into the record first, so an early save says it too."""
+        mon = self.gravity_monitor
+        if mon is not None and not mon.done:
+            self.mapper.gravity = mon.record()
+        return self.mapper.snapshot()
+
     def _check_gravity(self, frame: RGBDFrame) -> None:
         """Feed the gravity check (first frames only); its verdict goes to the map's gravity record."""
         mon = self.gravity_monitor
@@ -524,7 +532,7 @@ class MapperNode(Node):
         if self._checkpoint_thread is not None and self._checkpoint_thread.is_alive():
             return  # the previous one is still being written
         with self.lock:
-            snapshot = self.mapper.snapshot()  # a copy: the write below runs while mapping goes on
+            snapshot = self._snapshot()  # a copy: the write below runs while mapping goes on
         cp.start(int(snapshot.meta["frames_integrated"]))  # the next interval counts from this snapshot
         self._checkpoint_thread = threading.Thread(target=self._write_checkpoint, args=(snapshot,),
                                                    name="checkpoint", daemon=True)
@@ -549,7 +557,7 @@ class MapperNode(Node):
                 cp.last_path is not None and cp.last_frames == self.mapper.frames_integrated):
             return
         with self.lock:
-            snapshot = self.mapper.snapshot()
+            snapshot = self._snapshot()
         self._write_checkpoint(snapshot)
 
     # ------------------------------------------------------------------ services
@@ -563,7 +571,7 @@ class MapperNode(Node):
         try:
             folder = self._confined(req.path)
             with self._service_turn():
-                snapshot = self.mapper.snapshot()
+                snapshot = self._snapshot()
                 ents = self.mapper.entities()
             snapshot.write(folder)
             save_entities(ents, folder, self.map_frame)

@@ -353,3 +353,22 @@ def test_gravity_monitor_checks_a_stream_it_cannot_rotate(sim):
         assert rec["mode"] == "tf" and not rec["applied"] and rec["estimate"]["ok"]
         assert bool(mon.warning) == tilted and ("the fixed frame's up is" in rec["note"]) == tilted
     assert GravityMonitor(cfg).feed(frames[0][0], sim.intrinsics, None) is None  # no pose: nothing
+
+
+def test_gravity_monitor_reports_a_provisional_estimate_before_its_window_is_full(sim):
+    """A short bag (or frames lost under load) must not leave a saved map without its gravity check."""
+    from panoptic_mapping.gravity import GravityMonitor
+
+    frames = _views(sim, VIEWS)
+    mon = GravityMonitor(GravityConfig(window_frames=10, stride=1))
+    empty = mon.record()
+    assert empty["mode"] == "tf" and "estimate" not in empty and "no posed frame" in empty["note"]
+    for depth, pose in frames[:2]:
+        assert mon.feed(depth, sim.intrinsics, TILT @ pose) is None
+    rec = mon.record()
+    assert rec["provisional"] and rec["estimate"]["ok"] and rec["estimate"]["frames"] == 2
+    assert "the fixed frame's up is" in rec["note"] and "provisional: 2 of 10" in rec["note"]
+    assert not mon.done  # the check goes on collecting
+    for depth, pose in frames[2:]:
+        mon.feed(depth, sim.intrinsics, TILT @ pose)
+    assert mon.estimator is not None and mon.estimator.frames == len(frames)
