@@ -466,6 +466,7 @@ class PanopticMapper:
         lut = self.counts.canonical_lut(len(entity_of_label))
         canon = lut[np.clip(vlab, 0, len(lut) - 1)]
         ent_v = np.where(canon < len(entity_of_label), entity_of_label[np.clip(canon, 0, len(entity_of_label) - 1)], 0)
+        voted = ent_v > 0
         ent_v = self._fill_unclaimed(v, ent_v)
         ent_f = ent_v[f]
         same = (ent_f[:, 0] == ent_f[:, 1]) & (ent_f[:, 1] == ent_f[:, 2]) & (ent_f[:, 0] > 0)
@@ -482,8 +483,11 @@ class PanopticMapper:
                 continue
             faces = f[a:b]
             used, inv = np.unique(faces.ravel(), return_inverse=True)
-            e.vertices = v[used]
-            e.faces = inv.reshape(-1, 3)
+            # voted vertices first, the fill's fringe after them (Entity.core_vertices)
+            order = np.argsort(~voted[used], kind="stable")
+            rank = np.empty(len(order), np.int64)
+            rank[order] = np.arange(len(order))
+            e.set_geometry(v[used[order]], rank[inv].reshape(-1, 3), int(voted[used].sum()))
             e.num_voxels = len(used)
 
     def _fill_unclaimed(self, v: np.ndarray, ent_v: np.ndarray) -> np.ndarray:

@@ -10,7 +10,8 @@ On disk (a "mapped scene" folder, written by ``scene-recon map``, read by ``eval
 
     entities.json   {"format_version": 1, "map_frame": "map", "name": "<scene>", "entities": [
                         {"id", "name", "class_id", "class_name", "instance_id", "is_thing", "category",
-                         "confidence", "num_voxels", "revision", "mesh_file": "meshes/<id>.ply"}, ...]}
+                         "confidence", "num_voxels", "revision", "core_vertices",
+                         "mesh_file": "meshes/<id>.ply"}, ...]}
     meshes/<id>.ply the entity's triangle mesh in the map frame
 """
 
@@ -30,6 +31,9 @@ from recon_core.geometry.transforms import as_mesh
 from recon_core.io import write_text_atomic
 
 ENTITIES_FORMAT_VERSION = 1
+#: Below this many core faces ``Entity.core_mesh`` returns the whole mesh, fringe included: a thin
+#: sliver of votes says too little about an object's extent.
+MIN_CORE_FACES = 20
 
 
 @dataclass(eq=False)
@@ -40,6 +44,12 @@ class Entity:
     then takes it from the class table. ``revision`` increases whenever the entity's geometry
     changes, so incremental consumers rebuild only what changed. ``instance_id`` is the panoptic
     instance (0 for stuff); ``num_voxels`` the map voxels behind the entity (0 when not mapped).
+
+    ``core_vertices``: the first ``core_vertices`` vertices carry the entity's own label votes; the
+    rest are the unvoted fringe the mapper's extraction joined to it by proximity
+    (``extraction.fill_radius_m``). The fringe completes the surface (panoptic quality counts it) but
+    also picks up the neighbouring background along depth edges, which inflates a small object's
+    extent: model fitting reads ``core_mesh``. -1 (the default): every vertex is core.
     """
 
     id: int
@@ -54,15 +64,17 @@ class Entity:
     confidence: float = 1.0
     revision: int = 0
     num_voxels: int = 0
+    core_vertices: int = -1
 
     def __post_init__(self) -> None:
         self.id = int(self.id)
-        self.set_geometry(self.vertices, self.faces)
+        self.set_geometry(self.vertices, self.faces, self.core_vertices)
         if not self.name:
             self.name = f"{self.class_name}_{self.id}"
 
-    def set_geometry(self, vertices: ArrayLike, faces: ArrayLike | None = None) -> None:
-        """Replace the geometry (validated: finite vertices, face indices in range)."""
+    def set_geometry(self, vertices: ArrayLike, faces: ArrayLike | None = None, core_vertices: int = -1) -> None:
+        """Replace the geometry (validated: finite vertices, face indices in range); ``core_vertices``
+        as in the class docstring (-1 or out of range: all vertices are core)."""
         v = np.asarray(vertices, dtype=np.float64)
         v = v.reshape(-1, 3) if v.size else np.zeros((0, 3))
         f = np.asarray(faces if faces is not None else np.zeros((0, 3)), dtype=np.int64)
@@ -72,6 +84,19 @@ class Entity:
         if len(f) and (f.min() < 0 or f.max() >= len(v)):
             raise EntityError(f"entity {self.name or self.class_name!r} ({self.id}): face index out of range")
         self.vertices, self.faces = v, f
+        core = int(core_vertices)
+        self.core_vertices = core if 0 <= core < len(v) else -1
+
+    def core_mesh(self, min_faces: int = MIN_CORE_FACES) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Vertices and faces of the voted core (faces whose three vertices are core), or the whole
+        mesh when there is no fringe or the core holds fewer than ``min_faces`` faces."""
+        if self.core_vertices < 0:
+            return self.vertices, self.faces
+        n = self.core_vertices
+        keep = np.all(self.faces < n, axis=1)
+        if int(keep.sum()) < max(min_faces, 1):
+            return self.vertices, self.faces
+        return self.vertices[:n], self.faces[keep]
 
     @property
     def label(self) -> str:
@@ -105,7 +130,7 @@ class Entity:
             "instance_id": int(self.instance_id), "is_thing": bool(self.is_thing),
             "category": self.category or "rigid", "confidence": float(self.confidence),
             "num_voxels": int(self.num_voxels), "revision": int(self.revision),
-            "mesh_file": f"meshes/{self.id}.ply", "name": self.name,
+            "mesh_file": f"meshes/{self.id}.ply", "name": self.name, "core_vertices": int(self.core_vertices),
         }
 
 
@@ -154,10 +179,12 @@ def load_entities(folder: str | Path) -> list[Entity]:
             out.append(Entity(d["id"], d["class_name"], v, fc, name=d.get("name", ""), class_id=d["class_id"],
                               instance_id=d["instance_id"], category=d.get("category", "rigid"),
                               is_thing=d["is_thing"], confidence=d.get("confidence", 1.0),
-                              revision=d.get("revision", 0), num_voxels=d.get("num_voxels", 0)))
+                              revision=d.get("revision", 0), num_voxels=d.get("num_voxels", 0),
+                              core_vertices=int(d.get("core_vertices", -1))))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{f}: entity {d.get('id') if isinstance(d, dict) else d!r}: {exc}") from exc
     return out
 
 
-__all__ = ["ENTITIES_FORMAT_VERSION", "Entity", "EntityError", "load_entities", "read_entities_json", "save_entities"]
+__all__ = ["ENTITIES_FORMAT_VERSION", "MIN_CORE_FACES", "Entity",
+           "EntityError", "load_entities", "read_entities_json", "save_entities"]

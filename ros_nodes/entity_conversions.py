@@ -69,7 +69,8 @@ def entity_to_msg(e: Entity, include_mesh: bool = True, mesh_uri: str = "") -> P
     msg = PanopticEntity(id=int(e.id), class_id=int(e.class_id), class_name=e.class_name,
                          instance_id=int(e.instance_id), is_thing=bool(e.is_thing),
                          category=CATEGORY.get(e.category, PanopticEntity.CATEGORY_UNKNOWN),
-                         confidence=float(e.confidence), revision=int(e.revision), mesh_uri=mesh_uri)
+                         confidence=float(e.confidence), revision=int(e.revision), mesh_uri=mesh_uri,
+                         fringe_vertices=len(e.vertices) - e.core_vertices if e.core_vertices >= 0 else 0)
     msg.box = box_msg(e.vertices)
     if include_mesh and len(e.faces):
         msg.mesh = mesh_msg(e.vertices, e.faces)
@@ -140,7 +141,8 @@ def msg_to_entity(msg: PanopticEntity, mesh_root: str | Path | None = None) -> E
     return Entity(int(msg.id), msg.class_name or "unknown", v, f, class_id=int(msg.class_id),
                   instance_id=int(msg.instance_id), is_thing=bool(msg.is_thing),
                   category=CATEGORY_NAME.get(msg.category, ""), confidence=float(msg.confidence),
-                  revision=int(msg.revision), num_voxels=len(v))
+                  revision=int(msg.revision), num_voxels=len(v),
+                  core_vertices=len(v) - int(msg.fringe_vertices) if 0 < msg.fringe_vertices <= len(v) else -1)
 
 
 def entity_color(entity_id: int) -> ColorRGBA:

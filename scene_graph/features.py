@@ -6,6 +6,7 @@ incremental consumer (the ROS node) caches it per (entity id, revision).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,8 +57,15 @@ def compute_features(entity: Entity, cfg: SceneGraphConfig) -> NodeFeatures:
     if entity.is_empty:
         raise EntityError(f"entity {entity.name!r} ({entity.id}) has no geometry")
     node_class = classify(entity.class_name, entity.category, cfg.class_table)
-    points = _box_points(entity, cfg.box.surface_samples, cfg.planes.seed)
+    # Box and planes from the voted core (``Entity.core_mesh``): the mapper's fringe fill joins
+    # background along depth edges, which would inflate a small object's box and add its planes.
+    core = entity
+    if entity.core_vertices >= 0:
+        v, f = entity.core_mesh()
+        if len(f) < len(entity.faces):
+            core = dataclasses.replace(entity, vertices=v, faces=f, core_vertices=-1)
+    points = _box_points(core, cfg.box.surface_samples, cfg.planes.seed)
     box = fit_gravity_box(points, cfg.box.trim_percent)
     diag = float(np.linalg.norm(box.size))
-    planes = detect_planes(entity, cfg.planes, cfg.support.a_th, box_diagonal=diag)
+    planes = detect_planes(core, cfg.planes, cfg.support.a_th, box_diagonal=diag)
     return NodeFeatures(entity, node_class, box, planes)

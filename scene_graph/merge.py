@@ -70,12 +70,23 @@ def fragment_hosts(feats: list[NodeFeatures], cfg: MergeConfig) -> dict[int, int
 
 
 def merged_entity(host: Entity, fragments: list[Entity]) -> Entity:
-    """The host entity with the fragments' geometry appended (host id, name, class and confidence)."""
-    verts = [host.vertices]
-    faces = [host.faces]
-    offset = len(host.vertices)
-    for e in fragments:
-        verts.append(e.vertices)
-        faces.append(e.faces + offset)
-        offset += len(e.vertices)
-    return replace(host, vertices=np.concatenate(verts), faces=np.concatenate(faces))
+    """The host entity with the fragments' geometry appended (host id, name, class and confidence).
+
+    Every part's voted core comes first, then every part's fringe (``Entity.core_vertices``)."""
+    parts = [host, *fragments]
+    cores = [len(e.vertices) if e.core_vertices < 0 else e.core_vertices for e in parts]
+    n_core = sum(cores)
+    verts, faces = [], []
+    core_at, fringe_at = 0, n_core
+    for e, c in zip(parts, cores, strict=True):
+        n = len(e.vertices)
+        index = np.empty(n, np.int64)  # the part's vertex i -> its index in the merged entity
+        index[:c] = np.arange(core_at, core_at + c)
+        index[c:] = np.arange(fringe_at, fringe_at + n - c)
+        core_at, fringe_at = core_at + c, fringe_at + n - c
+        verts.append((index, e.vertices))
+        faces.append(index[e.faces])
+    merged = np.zeros((fringe_at, 3))
+    for index, v in verts:
+        merged[index] = v
+    return replace(host, vertices=merged, faces=np.concatenate(faces), core_vertices=n_core)

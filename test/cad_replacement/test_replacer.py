@@ -206,3 +206,30 @@ def test_support_height_on_the_floor_reaches_down_for_furniture_only():
     on_table = SupportEdge(parent_id=3, child_id=2, plane=Plane(np.array([0.0, 0.0, 1.0]), -0.75))
     lifted = GravityBox(np.array([0.0, 0.0, 0.95]), np.array([0.1, 0.1, 0.1]), 0.0)  # bottom 0.9
     assert support_height(on_table, table, lifted, max_size=2.0) == pytest.approx(0.9)
+
+
+def test_a_bottle_is_fitted_to_its_voted_core_not_the_fringe_behind_it():
+    """Mapped small objects carry the unvoted fringe the extraction joined to them (the cabinet front
+    behind a bottle): the CAD fit reads the voted core only (``Entity.core_mesh``); unmarked, the
+    same mesh makes the fitted bottle wider than it is."""
+    import trimesh
+
+    from recon_core.entity import Entity
+    from scene_graph.builder import build_contact_graph
+
+    floor = Entity.from_mesh(1, "floor_1", "floor", trimesh.creation.box([3, 3, 0.02]).apply_translation([0, 0, -0.01]))
+    table = Entity.from_mesh(2, "table_2", "table", trimesh.creation.box([0.8, 0.6, 0.72]).apply_translation(
+        [0, 0, 0.36]))
+    bottle = trimesh.creation.cylinder(radius=0.035, height=0.25, sections=32).apply_translation([0, 0, 0.845])
+    behind = trimesh.creation.box([0.16, 0.01, 0.2]).apply_translation([0, 0.045, 0.82])
+    both = trimesh.util.concatenate([bottle, behind])
+    marked = Entity(3, "bottle", both.vertices, both.faces, name="bottle_3", core_vertices=len(bottle.vertices))
+    graph = build_contact_graph([floor, table, marked])
+    widths = {}
+    for label, ent in (("marked", marked), ("unmarked", dataclasses.replace(marked, core_vertices=-1))):
+        result = CadReplacer(CadLibrary(seeds_per_class=3)).replace(graph, {1: floor, 2: table, 3: ent})
+        (obj,) = [o for o in result.scene if o.name == "bottle_3"]
+        v = np.concatenate([np.asarray(m.vertices) for m in obj.model.posed_link_meshes(obj.joint_values).values()])
+        widths[label] = float(np.ptp((v @ obj.pose[:3, :3].T)[:, :2], axis=0).max())
+    assert widths["marked"] < 0.09, widths
+    assert widths["unmarked"] > widths["marked"] + 0.01, widths  # measured: 7.3 vs 9.0 cm

@@ -275,3 +275,27 @@ def test_empty_map_extracts_nothing_without_error(tiny_scene):
     mapper.config.tsdf.mesh_weight_threshold = 1e9
     mapper._entity_cache = None
     assert all(len(e.faces) == 0 for e in mapper.entities())
+
+
+def test_fringe_fill_is_marked_after_the_voted_core(tiny_scene):
+    """The fill (extraction.fill_radius_m) completes an entity's surface, but its vertices carry no
+    votes of their own: they come last and ``core_vertices`` counts the voted ones before them."""
+    _, renderer = tiny_scene
+    mapper = _mapper()
+    _run(mapper, renderer, shuffle_ids=False)
+    mapper.config.extraction.fill_radius_m = 0.0
+    bare = {e.id: e for e in mapper.entities() if e.class_id != BACKGROUND}
+    mapper.config.extraction.fill_radius_m = 0.08
+    mapper._entity_cache = None  # the extraction settings changed, not the map
+    filled = {e.id: e for e in mapper.entities() if e.class_id != BACKGROUND}
+    assert bare.keys() == filled.keys()
+    fringed = 0
+    for eid, e in filled.items():
+        core = len(e.vertices) if e.core_vertices < 0 else e.core_vertices
+        fringed += len(e.vertices) - core
+        # every vertex the unfilled extraction gives the entity is voted: it lies in the core
+        as_set = {tuple(p) for p in np.round(e.vertices[:core], 6)}
+        assert all(tuple(p) in as_set for p in np.round(bare[eid].vertices, 6)), e.name
+        v, f = e.core_mesh(min_faces=1)
+        assert len(v) == core and (len(f) == 0 or f.max() < core)
+    assert fringed > 0  # the fill did join unvoted vertices, and they were told apart

@@ -137,6 +137,43 @@ def test_far_fragment_no_longer_inflates_a_cup_box():
     assert build_contact_graph([e], off).nodes[9].box_unrefined.size[:2].max() > 0.5
 
 
+def _with_fringe(eid: int, name: str, cls: str, core: trimesh.Trimesh, fringe: trimesh.Trimesh) -> Entity:
+    """An entity as the mapper extracts it: voted core vertices first, the fill's fringe after them."""
+    both = trimesh.util.concatenate([core, fringe])
+    return Entity(eid, cls, both.vertices, both.faces, name=name, core_vertices=len(core.vertices))
+
+
+def test_a_bottle_box_comes_from_its_voted_core_not_the_joined_fringe():
+    """The fill joins the cabinet front behind a 5 cm bottle to it (unvoted fringe): the box must not
+    grow to cover it (mapped bottles measured 17 cm wide before)."""
+    bottle = trimesh.creation.cylinder(radius=0.027, height=0.18, sections=24).apply_translation([0, 0, 1.0])
+    behind = patch([-0.06, 0.04, 0.92], [0.12, 0, 0], [0, 0, 0.16], nu=6, nv=8)
+    e = _with_fringe(9, "bottle_9", "bottle", bottle, behind)
+    box = build_contact_graph([e]).nodes[9].box_unrefined
+    assert np.all(box.size[:2] < 0.07), box.size
+    whole = Entity(9, "bottle", e.vertices, e.faces, name="bottle_9")  # without the marking: inflated
+    assert build_contact_graph([whole]).nodes[9].box_unrefined.size[:2].max() > 0.1
+
+
+def test_merged_fragments_keep_every_voted_core_before_the_fringes():
+    from scene_graph.merge import merged_entity
+
+    a = _with_fringe(1, "table_1", "table", trimesh.creation.box([1, 1, 0.03]),
+                     patch([0.6, 0, 0], [0.1, 0, 0], [0, 0.1, 0], nu=1, nv=1))
+    b = _with_fringe(2, "table_2", "table", trimesh.creation.box([0.05, 0.05, 0.7]),
+                     patch([0.3, 0.3, 0], [0.1, 0, 0], [0, 0.1, 0], nu=1, nv=1))
+    m = merged_entity(a, [b])
+    n_core = a.core_vertices + b.core_vertices
+    assert m.core_vertices == n_core and len(m.vertices) == len(a.vertices) + len(b.vertices)
+    v, f = m.core_mesh(min_faces=1)
+    # the core mesh is exactly the two cores' triangles, the fringe triangles are all left out
+    core_tris = np.r_[a.vertices[a.faces[np.all(a.faces < a.core_vertices, axis=1)]],
+                      b.vertices[b.faces[np.all(b.faces < b.core_vertices, axis=1)]]]
+    assert np.allclose(np.sort(v[f].reshape(-1, 3), axis=0), np.sort(core_tris.reshape(-1, 3), axis=0))
+    assert len(m.faces) == len(a.faces) + len(b.faces)
+    assert np.allclose(m.vertices[m.faces].sum(), a.vertices[a.faces].sum() + b.vertices[b.faces].sum())
+
+
 def test_over_segmented_table_merges_but_stacked_books_do_not(entity):
     floor = Entity.from_mesh(1, "floor_1", "floor", mapped_floor())
     table = entity(4, "table", [([-0.5, -0.4, 0.72], [0.5, 0.4, 0.75]), ([-0.5, -0.4, 0.0], [-0.45, -0.35, 0.72])])
