@@ -98,9 +98,11 @@ def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
         header = Header(frame_id="map")
         pub_entities.publish(PanopticEntityArray(header=header, entities=[entity_to_msg(e) for e in entities]))
         pub_graph.publish(graph_to_msg(graph, header))
-        ready = spin_until(node, lambda: bool(descriptions) and "cup_5" in tf and bool(joint_states), 120)
-        assert ready, (f"description {bool(descriptions)}, tf frames {sorted(tf)}, joint states {len(joint_states)}, "
-                       f"node exit {proc.poll()}")
+        # (each topic arrives on its own: under load /tf_static can come after the description)
+        ready = spin_until(node, lambda: bool(descriptions) and "cup_5" in tf and bool(joint_states)
+                           and "table_2" in static, 120)
+        assert ready, (f"description {bool(descriptions)}, tf frames {sorted(tf)}, static {sorted(static)}, "
+                       f"joint states {len(joint_states)}, node exit {proc.poll()}")
         urdf_path = tmp_path / "scene.urdf"
         urdf_path.write_text(descriptions[-1].data.replace(f"file://{out_dir}/", f"{out_dir}/"))
         urdf = yourdfpy.URDF.load(str(urdf_path))
