@@ -22,6 +22,9 @@ plus replacement.json and contact_graph.json into ``output_dir``; the message na
 Every publication carries the scene revision in the URDF (``<!-- revision N -->``) and in the
 ``joint_states`` header's frame id is the map frame. Parameters: ``CadReplacerNodeConfig`` and
 ``CadReplacementConfig`` under ``replace.`` (dotted names, see ``ros_nodes.parameters``).
+``/diagnostics`` (``ros_nodes.diagnostics``, every second): graphs received and their rate, replacements,
+the median replacement time, objects, revision, the newest error; ERROR when the last replacement failed
+(the previous scene stays published), WARN when entities were skipped within the last seconds.
 """
 
 from __future__ import annotations
@@ -59,6 +62,7 @@ from recon_core.entity import Entity
 from recon_core.errors import EntityError
 from recon_core.io import write_text_atomic
 from recon_core.kinematic_tree import KinematicTree
+from ros_nodes import diagnostics as diag
 from ros_nodes.contact_graph_node import graph_from_msg
 from ros_nodes.conversions import make_transform_stamped, matrix_to_transform, ns_to_stamp, transform_to_matrix
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, msg_to_entity
@@ -120,7 +124,11 @@ class CadReplacerNode(Node):
         self._dirty = False
         self._last = -float("inf")
         self.counters = {"graphs": 0, "replacements": 0, "rematched": 0, "actions": 0, "refused": 0,
-                         "bad_entities": 0}
+                         "bad_entities": 0, "failed": 0}
+        self.input_rate, self.replace_ms = diag.RateWindow(), diag.LatencyWindow()
+        self.last_error = ""
+        self._last_failed = False
+        self._recent = diag.RecentIncrease()
         work = MutuallyExclusiveCallbackGroup()
         io = MutuallyExclusiveCallbackGroup()
         s = self.settings
@@ -139,6 +147,7 @@ class CadReplacerNode(Node):
         self.create_service(Trigger, "export_scene", self._srv_export, callback_group=io)
         steady_timer(self, 0.05, self._maybe_replace, work)
         steady_timer(self, s.tf_period_s, self._publish_dynamic, io)
+        self.diagnostics = diag.NodeDiagnostics(self, "CAD replacement", self.health, callback_group=io)
 
     # ------------------------------------------------------------------ inputs
     def _on_entities(self, msg: PanopticEntityArray) -> None:
@@ -151,6 +160,7 @@ class CadReplacerNode(Node):
                 fresh[int(e.id)] = msg_to_entity(e, self.mesh_root)
             except EntityError as exc:
                 self.counters["bad_entities"] += 1
+                self.last_error = f"entity {e.id} skipped: {exc}"
                 self.get_logger().warning(f"entity {e.id} skipped: {exc}", throttle_duration_sec=5.0)
         with self.lock:
             self._last_input = time.monotonic()
@@ -166,6 +176,7 @@ class CadReplacerNode(Node):
             self.graph_msg = msg
             self._dirty = True
         self.counters["graphs"] += 1
+        self.input_rate.tick()
 
     def _on_graph_json(self, msg: String) -> None:
         with self.lock:
@@ -174,6 +185,7 @@ class CadReplacerNode(Node):
             self.graph_msg = msg.data
             self._dirty = True
         self.counters["graphs"] += 1
+        self.input_rate.tick()
 
     # ------------------------------------------------------------------ replacement
     def _maybe_replace(self) -> None:
@@ -191,13 +203,23 @@ class CadReplacerNode(Node):
                 self._incremental = self.settings.final_replace_s > 0
             self._dirty = False
             self._last = time.monotonic()
-            graph = (ContactGraph.from_dict(json.loads(self.graph_msg)) if isinstance(self.graph_msg, str)
-                     else graph_from_msg(self.graph_msg))
+            graph_msg = self.graph_msg
             entities = dict(self.entities)
             revision = self.scene.revision + 1 if self.scene is not None else 1
         self._publish_status(busy=True)
         t0 = time.perf_counter()
-        result = self.replacer.replace(graph, entities)
+        try:
+            graph = (ContactGraph.from_dict(json.loads(graph_msg)) if isinstance(graph_msg, str)
+                     else graph_from_msg(graph_msg))
+            result = self.replacer.replace(graph, entities)
+        except Exception as exc:  # one bad graph must not take the node down: the last scene stays
+            self.counters["failed"] += 1
+            self.last_error, self._last_failed = f"replacement failed: {type(exc).__name__}: {exc}", True
+            self.get_logger().error(f"{self.last_error}; the scene of revision {revision - 1} stays")
+            self._publish_status(busy=False)
+            return
+        self._last_failed = False
+        self.replace_ms.add(1000 * (time.perf_counter() - t0))
         result.scene.revision = revision
         self.counters["replacements"] += 1
         self.counters["rematched"] += result.rematched
@@ -213,6 +235,27 @@ class CadReplacerNode(Node):
         self.get_logger().info(f"scene revision {revision}: {len(result.scene)} objects, {result.rematched} "
                                f"re-matched in {time.perf_counter() - t0:.2f} s"
                                f"{' (from scratch)' if final else ''}; {self.counters}")
+
+    def health(self) -> diag.Health:
+        """What /diagnostics reports: the node's counters, the input rate, the median replacement time."""
+        with self.lock:
+            scene, c = self.scene, dict(self.counters)
+            pending = self._dirty
+        h = diag.Health(values={
+            diag.KEY_INPUT_RATE: self.input_rate.rate_hz(), diag.KEY_LATENCY: self.replace_ms.median_ms(),
+            diag.KEY_RECEIVED: c["graphs"], diag.KEY_PROCESSED: c["replacements"], "failed": c["failed"],
+            "rematched": c["rematched"], diag.KEY_SKIPPED: c["bad_entities"], "actions": c["actions"],
+            "refused_actions": c["refused"], "objects": len(scene) if scene is not None else 0,
+            "revision": scene.revision if scene is not None else 0, "replacement_pending": pending,
+            diag.KEY_LAST_ERROR: self.last_error})
+        if self._last_failed:
+            h.escalate(diag.ERROR, self.last_error)
+        elif self._recent.grew("skipped", c["bad_entities"]):
+            h.escalate(diag.WARN, f"entities skipped: {self.last_error}")
+        if h.level == diag.OK:
+            h.message = (f"scene revision {scene.revision}: {len(scene)} objects" if scene is not None
+                         else "waiting for a contact graph")
+        return h
 
     def _urdf_body(self, scene: ReplacedScene) -> str:
         """The scene's URDF without its revision: what tells two scenes apart."""

@@ -18,7 +18,10 @@ config/scene_graph.yaml), every key of that file under its dotted name (``suppor
 and the node's own settings, ``ContactGraphNodeConfig`` (topics, ``min_period_s``, ``snapshot``,
 ``mesh_root``: meshes given by ``mesh_uri`` are read only under it, and an entity whose file is
 refused or is not a mesh is skipped with a warning, never a crash). The entity subscription is
-transient-local: a restarted node gets the mapper's current entities at once.
+transient-local: a restarted node gets the mapper's current entities at once. `/diagnostics`
+(`ros_nodes.diagnostics`, every second): entity messages received and their rate, graphs built, the
+median build time, entities skipped, the newest error; ERROR when the last update was rejected, WARN
+when entities were skipped within the last seconds.
 
 The message conversions live here too (the only ROS-facing code of the contact graph).
 """
@@ -49,6 +52,7 @@ from recon_core.contact_graph import SCENE, ContactGraph, GraphNode, SupportEdge
 from recon_core.entity import EntityError
 from recon_core.geometry.box import GravityBox
 from recon_core.geometry.plane import Plane, SurfacePlane
+from ros_nodes import diagnostics as diag
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, msg_to_entity, oriented_box_msg
 from ros_nodes.parameters import declare_config, declare_config_file
 from ros_nodes.qos import ENTITIES as ENTITIES_QOS
@@ -251,10 +255,17 @@ class ContactGraphNode(Node):
         self._header: Header | None = None
         self._dirty = False
         self._last_build = -float("inf")
+        self.input_rate, self.build_ms = diag.RateWindow(), diag.LatencyWindow()
+        self.last_error = ""
+        self._last_update_failed = False
+        self._graph_nodes = 0
+        self._recent = diag.RecentIncrease()
         steady_timer(self, 0.05, self._maybe_build)
+        self.diagnostics = diag.NodeDiagnostics(self, "contact graph", self.health)
 
     def _on_entities(self, msg: PanopticEntityArray) -> None:
         self.counters["messages"] += 1
+        self.input_rate.tick()
         self._last_message = time.monotonic()
         self.builder.remove(int(i) for i in msg.removed_ids)
         if self.snapshot:
@@ -269,13 +280,16 @@ class ContactGraphNode(Node):
                 fresh.append(msg_to_entity(e, self.mesh_root))
             except EntityError as exc:
                 self.counters["bad_entities"] += 1
+                self.last_error = str(exc)
                 self.get_logger().warning(str(exc), throttle_duration_sec=5.0)
         try:
             rebuilt = self.builder.update(fresh)
         except EntityError as exc:
             self.counters["bad_entities"] += 1
-            self.get_logger().error(f"entities rejected: {exc}")
+            self.last_error, self._last_update_failed = f"entities rejected: {exc}", True
+            self.get_logger().error(self.last_error)
             return
+        self._last_update_failed = False
         self.counters["rebuilt_entities"] += len(rebuilt)
         self._header = msg.header
         self._dirty = True
@@ -318,6 +332,8 @@ class ContactGraphNode(Node):
         self.pub_graph.publish(graph_to_msg(graph, self._header))
         self.pub_markers.publish(graph_markers(graph, self._header))
         self.counters["builds"] += 1
+        self.build_ms.add(1000 * (time.perf_counter() - t0))
+        self._graph_nodes = len(graph.nodes) - 1
         self.get_logger().info(f"contact graph: {len(graph.nodes) - 1} nodes, {len(graph.proximal)} proximal, "
                                f"{1000 * (time.perf_counter() - t0):.0f} ms; {self.counters}")
 
@@ -341,6 +357,24 @@ class ContactGraphNode(Node):
         self._node_msgs = msgs
         return PanopticEntityArray(header=header, entities=[m for _, _, m in msgs.values()], removed_ids=removed)
 
+
+
+    def health(self) -> diag.Health:
+        """What /diagnostics reports: the node's counters, the input rate, the median build time."""
+        c = self.counters
+        h = diag.Health(hardware_id="", values={
+            diag.KEY_INPUT_RATE: self.input_rate.rate_hz(), diag.KEY_LATENCY: self.build_ms.median_ms(),
+            diag.KEY_RECEIVED: c["messages"], "builds": c["builds"], "rebuilt_entities": c["rebuilt_entities"],
+            diag.KEY_SKIPPED: c["bad_entities"], "graph_nodes": self._graph_nodes, "build_pending": self._dirty,
+            diag.KEY_LAST_ERROR: self.last_error})
+        if self._last_update_failed:
+            h.escalate(diag.ERROR, self.last_error)
+        elif self._recent.grew("skipped", c["bad_entities"]):
+            h.escalate(diag.WARN, f"entities skipped: {self.last_error}")
+        if h.level == diag.OK:
+            h.message = (f"{self._graph_nodes} nodes in the graph" if c["builds"]
+                         else "waiting for entities")
+        return h
 
 
 def _without_stats(d: dict) -> dict:

@@ -8,7 +8,10 @@ Outputs: `panoptic_entities` (PanopticEntityArray, transient-local: a consumer s
 later gets the current entities at once) and `panoptic_map_markers` (MarkerArray) at
 `publish_period_s` when the map changed; `mapper_status` (std_msgs/String, JSON, transient-local,
 every `status_period_s`): frames integrated, frames dropped (backlog) and every other counter,
-queue length, keyframes waiting for labels, whether changes await publication, checkpoints.
+queue length, keyframes waiting for labels, whether changes await publication, checkpoints;
+`/diagnostics` (diagnostic_msgs/DiagnosticArray, every second, `ros_nodes.diagnostics`): the same
+counters with the input rate, latencies and a level (ERROR: the last frame failed; WARN: frames
+dropped or skipped, keyframes mapped without labels, or the segmentation service missing).
 Services save_map / load_map / reset_map / extract_entities.
 
 Under load: the services run on a callback group of their own and take the map's lock between two
@@ -66,6 +69,7 @@ from recon_core.config import CONFIG_DIR, Settings, load_config, setting
 from recon_core.errors import CheckpointError, SceneReconError
 from recon_core.frame import DatasetError, RGBDFrame
 from recon_core.paths import confined_path
+from ros_nodes import diagnostics as diag
 from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, map_markers
 from ros_nodes.parameters import declare_config, declare_config_file
@@ -197,6 +201,15 @@ class MapperNode(Node):
         self.queue: collections.deque[tuple[Image, Image, float]] = collections.deque()
         self.pending: list[_Pending] = []
         self.counters = collections.Counter()
+        # for /diagnostics: the input rate, recent latencies, the newest error (the counts are `counters`)
+        self.input_rate = diag.RateWindow()
+        self.integrate_ms = diag.LatencyWindow()
+        self.segmentation_ms = diag.LatencyWindow()
+        self.last_error = ""
+        self._last_step_failed = False
+        self._publish_failed = False
+        self._camera_frame = ""
+        self._recent = diag.RecentIncrease()
         self._changed = self.mapper.frames_integrated > 0  # a resumed map is published at once
         self._next_publish = 0.0
         self._published_revision: dict[int, tuple[str, int]] = {}  # id -> (mesh digest, revision published)
@@ -208,6 +221,7 @@ class MapperNode(Node):
         # under load went from < 1 s to 2-6 s (test_node_faults); its duty cycle is capped (PUBLISH_DUTY)
         steady_timer(self, self.publish_period_s, self._publish, self.map_group)
         steady_timer(self, settings.status_period_s, self._report, inputs)
+        self.diagnostics = diag.NodeDiagnostics(self, "panoptic mapping", self.health, callback_group=inputs)
         self.get_logger().info(f"data root {self.data_root}; checkpoints "
                                + (f"every {self.config.checkpoint.every_n_frames} frames / "
                                   f"{self.config.checkpoint.every_s:g} s" if self.checkpointer else "disabled"))
@@ -280,6 +294,9 @@ class MapperNode(Node):
 
     def _enqueue(self, color: Image, depth: Image) -> None:
         self.queue.append((color, depth, time.monotonic()))
+        self.counters["received"] += 1
+        self.input_rate.tick()
+        self._camera_frame = color.header.frame_id
         while len(self.queue) > self.max_queue:  # cannot keep up: drop the oldest, keep the newest
             self.queue.popleft()
             self.counters["dropped_backlog"] += 1
@@ -299,7 +316,7 @@ class MapperNode(Node):
                              color_msg.header.frame_id, n_bad)
         except DatasetError as exc:
             self.counters["bad_image"] += 1
-            self.get_logger().error(f"frame at {stamp * 1e-9:.3f} s skipped: {exc}", throttle_duration_sec=5.0)
+            self._failed(f"frame at {stamp * 1e-9:.3f} s skipped: {exc}")
             return None
 
     # ------------------------------------------------------------------ processing
@@ -402,6 +419,7 @@ class MapperNode(Node):
                 except Exception as exc:  # the service died mid-call: map geometry anyway
                     self.counters["segmentation_failed"] += 1
                     self.get_logger().warning(f"segmentation call failed: {exc}", throttle_duration_sec=5.0)
+                self.segmentation_ms.add(1000 * (time.monotonic() - item.sent))
                 self._integrate(item.frame, masks)
             elif time.monotonic() - item.sent > self.seg_timeout_s:
                 self.counters["segmentation_timeout"] += 1
@@ -423,6 +441,7 @@ class MapperNode(Node):
         return PanopticMasks(np.where(labels < n, labels, 0).astype(np.int32), cls, thing, score)
 
     def _integrate(self, frame: RGBDFrame, masks: PanopticMasks | None, geometry_only: bool = False) -> None:
+        t0 = time.perf_counter()
         try:
             if masks is not None and masks.labels.shape != frame.depth.shape:
                 self.get_logger().error("segmentation labels do not match the image size; ignored")
@@ -433,9 +452,16 @@ class MapperNode(Node):
                 self.mapper.integrate(frame, masks)
             self.counters["integrated"] += 1
             self._changed = True
+            self._last_step_failed = False
+            self.integrate_ms.add(1000 * (time.perf_counter() - t0))
         except (ValueError, DatasetError) as exc:
             self.counters["integration_error"] += 1
-            self.get_logger().error(f"frame not integrated: {exc}", throttle_duration_sec=5.0)
+            self._failed(f"frame not integrated: {exc}")
+
+    def _failed(self, message: str) -> None:
+        """The last processing step failed: logged, and /diagnostics says ERROR until a frame integrates."""
+        self.last_error, self._last_step_failed = message, True
+        self.get_logger().error(message, throttle_duration_sec=5.0)
 
     # ------------------------------------------------------------------ outputs
     def _entities_msg(self, ents: list, include_meshes: bool, publishing: bool, frames: int) -> PanopticEntityArray:
@@ -491,8 +517,10 @@ class MapperNode(Node):
                 frames = self.mapper.frames_integrated
             msg = self._entities_msg(ents, self.include_meshes, publishing=True, frames=frames)
         except (RuntimeError, ValueError) as exc:  # never let one bad extraction take the node down
-            self.get_logger().error(f"entity extraction failed: {exc}", throttle_duration_sec=5.0)
+            self.last_error, self._publish_failed = f"entity extraction failed: {exc}", True
+            self.get_logger().error(self.last_error, throttle_duration_sec=5.0)
             return
+        self._publish_failed = False
         self.pub_entities.publish(msg)
         self.counters["publications"] += 1
         self._next_publish = t0 + (time.monotonic() - t0) / self.PUBLISH_DUTY
@@ -512,6 +540,45 @@ class MapperNode(Node):
                 # frames in the newest checkpoint written: what a restarted (resume:=true) mapper starts from
                 "checkpoint_frames": self.checkpoint_frames,
                 "gravity": self.mapper.gravity.get("note", "")}
+
+    #: Counters of frames skipped as unusable (no pose, no camera info, bad image, depth without color).
+    SKIP_COUNTERS = ("no_tf", "no_camera_info", "bad_image", "unpaired_depth")
+    #: Counters of keyframes integrated without labels.
+    UNLABELLED_COUNTERS = ("keyframes_unsegmented", "segmentation_timeout", "segmentation_failed")
+
+    def health(self) -> diag.Health:
+        """What /diagnostics reports: the counters of `status()`, rates, latencies and a level."""
+        c = self.counters
+        skipped = sum(c[k] for k in self.SKIP_COUNTERS)
+        unlabelled = sum(c[k] for k in self.UNLABELLED_COUNTERS)
+        if not self.use_segmentation:
+            service = "disabled"
+        else:
+            service = "ready" if self.seg_client.service_is_ready() else "missing"
+        h = diag.Health(hardware_id=self._camera_frame, values={
+            diag.KEY_INPUT_RATE: self.input_rate.rate_hz(), diag.KEY_LATENCY: self.integrate_ms.median_ms(),
+            "segmentation_latency_ms": self.segmentation_ms.median_ms(),
+            diag.KEY_RECEIVED: c["received"], diag.KEY_PROCESSED: c["integrated"],
+            "frames_integrated": self.mapper.frames_integrated, "keyframes": self.mapper.keyframes,
+            diag.KEY_DROPPED: c["dropped_backlog"], diag.KEY_SKIPPED: skipped, diag.KEY_QUEUE: len(self.queue),
+            "pending_segmentations": len(self.pending), "keyframes_without_labels": unlabelled,
+            "segmentation_service": service, "unpublished_changes": bool(self._changed),
+            "checkpoints": self.checkpointer.saved if self.checkpointer else 0, diag.KEY_LAST_ERROR: self.last_error})
+        if self._recent.grew("dropped", c["dropped_backlog"]):
+            h.escalate(diag.WARN, "dropping frames (cannot keep up)")
+        if self._recent.grew("skipped", skipped):
+            h.escalate(diag.WARN, "frames skipped (no pose, no camera info or a bad image)")
+        if self._recent.grew("unlabelled", unlabelled):
+            h.escalate(diag.WARN, "keyframes mapped without labels (segmentation missing, slow or failing)")
+        if service == "missing":
+            h.escalate(diag.WARN, f"segmentation service {self.seg_client.srv_name} missing")
+        if self._publish_failed:
+            h.escalate(diag.ERROR, self.last_error)
+        if self._last_step_failed:
+            h.escalate(diag.ERROR, f"last frame failed: {self.last_error}")
+        if h.level == diag.OK:
+            h.message = f"{self.mapper.frames_integrated} frames integrated, queue {len(self.queue)}"
+        return h
 
     def _report(self) -> None:
         status = self.status()

@@ -10,6 +10,10 @@ frame and every `clock_period_s` in between, scaled by `rate`), so nodes with `u
 it; `start_offset_s` skips the first seconds; `loop` starts over; the service `~/set_paused`
 (std_srvs/SetBool, true = pause) holds playback and the clock, and resuming continues from the same
 frame with the same timing. Parameters: `RGBDPlayerConfig` (declared through `ros_nodes.parameters`).
+`/diagnostics` (`ros_nodes.diagnostics`, every second and once more when playback ends): state, frames
+published and their rate, the median lateness of a frame behind its schedule, frames the reader
+skipped; ERROR when the source cannot be played, WARN when it played without its subscribers or
+the reader skipped frames within the last seconds.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from tf2_msgs.msg import TFMessage
 from panoptic_mapping.dataio import DataInputConfig, DatasetError
 from panoptic_mapping.dataio.registry import open_dataset
 from recon_core.config import Settings, setting
+from ros_nodes import diagnostics as diag
 from ros_nodes.conversions import (
     depth_to_image,
     intrinsics_to_camera_info,
@@ -106,12 +111,17 @@ class RGBDPlayer(Node):
         self.pub_tf = self.create_publisher(TFMessage, "/tf", TF_DYNAMIC)
         self.published = 0
         self.finished = False
+        self.last_error = ""
+        self._failed = False
+        self._unmatched = False  # played without the subscribers it waited for
+        self.publish_rate, self.lateness_ms = diag.RateWindow(), diag.LatencyWindow()
+        self._recent = diag.RecentIncrease()
+        self.diagnostics = diag.NodeDiagnostics(self, "RGB-D playback", self.health)
         self._frames = None
         self._t0_wall = self._t0_data = None
         self._pending = None
         if not self.path:
-            self.get_logger().error("parameter 'source' is empty: give a bag or frame folder to play")
-            self.finished = True
+            self._error("parameter 'source' is empty: give a bag or frame folder to play")
             return
         self._open()
         self._created = time.monotonic()
@@ -123,8 +133,7 @@ class RGBDPlayer(Node):
         try:
             self._loader = open_dataset(self.path, cfg)
         except DatasetError as exc:
-            self.get_logger().error(f"cannot play {self.path}: {exc}")
-            self.finished = True
+            self._error(f"cannot play {self.path}: {exc}")
             return
         self._frames = iter(self._loader)
         self._t0_wall = self._t0_data = None
@@ -167,6 +176,7 @@ class RGBDPlayer(Node):
             if time.monotonic() - self._created < self.wait_timeout_s:
                 return
             self.get_logger().warning(f"subscribers missing after {self.wait_timeout_s:.0f} s; playing anyway")
+            self._unmatched = True
             self.wait_for_subscribers = self.wait_for_label_subscribers = 0
         if self._t0_wall is None and (self.wait_for_subscribers or self.wait_for_label_subscribers):
             if self._matched_at is None:
@@ -189,8 +199,7 @@ class RGBDPlayer(Node):
                 self.finished = True
                 return
             except DatasetError as exc:
-                self.get_logger().error(f"stopped playing: {exc}")
-                self.finished = True
+                self._error(f"stopped playing: {exc}")
                 return
         f = self._pending
         now = time.monotonic()
@@ -214,7 +223,44 @@ class RGBDPlayer(Node):
         if "labels" in f.extras:
             self.pub_labels.publish(labels_to_image(f.extras["labels"], stamp, self.camera_frame))
         self.published += 1
+        self.publish_rate.tick(now)
+        self.lateness_ms.add(1000 * (now - due))
         self._pending = None
+
+    def _error(self, message: str) -> None:
+        self.get_logger().error(message)
+        self.last_error, self._failed, self.finished = message, True, True
+
+    def state(self) -> str:
+        if self._failed:
+            return "failed"
+        if self.finished:
+            return "finished"
+        if self.paused:
+            return "paused"
+        return "waiting for subscribers" if self._t0_wall is None else "playing"
+
+    def health(self) -> diag.Health:
+        """What /diagnostics reports."""
+        loader = getattr(self, "_loader", None)
+        skipped = sum(loader.skips.as_dict().values()) if loader is not None else 0
+        state = self.state()
+        h = diag.Health(hardware_id=self.camera_frame, values={
+            "state": state, "source": self.path, diag.KEY_INPUT_RATE: self.publish_rate.rate_hz(),
+            diag.KEY_LATENCY: self.lateness_ms.median_ms(), diag.KEY_PROCESSED: self.published,
+            diag.KEY_SKIPPED: skipped, diag.KEY_QUEUE: int(self._pending is not None),
+            "subscribers": min((p.get_subscription_count() for p in (self.pub_color, self.pub_depth, self.pub_tf)),
+                               default=0),
+            diag.KEY_LAST_ERROR: self.last_error})
+        if self._failed:
+            h.escalate(diag.ERROR, self.last_error)
+        if self._unmatched:
+            h.escalate(diag.WARN, "played without the subscribers it waited for: frames may be lost")
+        if self._recent.grew("skipped", skipped):
+            h.escalate(diag.WARN, "frames skipped by the reader")
+        if h.level == diag.OK:
+            h.message = f"{state}: {self.published} frames published"
+        return h
 
 
 def main(args: list[str] | None = None) -> int:
@@ -223,6 +269,7 @@ def main(args: list[str] | None = None) -> int:
     try:
         while rclpy.ok() and not node.finished and not stop.is_set():
             rclpy.spin_once(node, timeout_sec=0.1)
+        node.diagnostics.publish()  # the final state (finished / failed) before the node goes away
         # let reliable subscribers drain the last messages before the publishers go away
         end = time.monotonic() + 0.5
         while rclpy.ok() and time.monotonic() < end and not stop.is_set():

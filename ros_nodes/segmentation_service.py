@@ -22,6 +22,10 @@ and the node's own settings (`SegmentationServiceConfig`):
   label_wait_s    oracle: how long a request waits for its label image to arrive
   stats_period_s  period of the latency log (mean/max over the period)
 
+`/diagnostics` (`ros_nodes.diagnostics`, every second): requests and failures since start, the request
+rate, the median request and backend latencies of the recent requests, the newest failure; ERROR when
+the last request failed, WARN when one failed within the last seconds.
+
 The oracle's label images come from `/ground_truth/panoptic_labels` (published by `rgbd_player`
 for generated bags); a request is matched to the label image whose stamp equals the color image's.
 """
@@ -53,6 +57,7 @@ from panoptic_mapping.segmentation import (
 from panoptic_mapping.segmentation.config import DEFAULT_SEGMENTATION_YAML
 from recon_core.config import ConfigError, Settings, setting
 from recon_core.frame import DatasetError
+from ros_nodes import diagnostics as diag
 from ros_nodes.conversions import image_to_depth, image_to_labels, image_to_rgb, labels_to_image, stamp_to_ns
 from ros_nodes.parameters import declare_config, declare_config_file
 from ros_nodes.qos import SENSOR_RECORDING
@@ -87,6 +92,10 @@ class LabelBuffer:
             self._cond.wait_for(lambda: stamp_ns in self._images, timeout=max(timeout_s, 0.0))
             return self._images.get(stamp_ns)
 
+    def count(self) -> int:
+        with self._cond:
+            return len(self._images)
+
     def describe(self) -> str:
         with self._cond:
             if not self._images:
@@ -96,21 +105,35 @@ class LabelBuffer:
 
 
 class LatencyStats:
-    """Backend and whole-request latencies since the last report."""
+    """Backend and whole-request latencies since the last report; for /diagnostics also the totals since
+    start, the recent latencies, the request rate and the newest failure."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._backend: list[float] = []
         self._total: list[float] = []
         self._failures = 0
+        self.requests = self.failures = 0
+        self.last_error = ""
+        self.last_failed = False
+        self.recent_total, self.recent_backend = diag.LatencyWindow(), diag.LatencyWindow()
+        self.rate = diag.RateWindow()
 
-    def add(self, backend_ms: float | None, total_ms: float) -> None:
+    def add(self, backend_ms: float | None, total_ms: float, error: str = "") -> None:
+        """One request: its backend latency (None: it failed, with `error`) and its whole time."""
         with self._lock:
             self._total.append(total_ms)
+            self.requests += 1
+            self.last_failed = backend_ms is None
             if backend_ms is None:
                 self._failures += 1
+                self.failures += 1
+                self.last_error = error
             else:
                 self._backend.append(backend_ms)
+                self.recent_backend.add(backend_ms)
+        self.recent_total.add(total_ms)
+        self.rate.tick()
 
     def report(self) -> str | None:
         """One line (and reset), or None when there were no requests."""
@@ -156,6 +179,9 @@ class SegmentationService(Node):
             self.create_subscription(Image, self.labels_topic, self.on_labels, SENSOR_RECORDING,
                                      callback_group=MutuallyExclusiveCallbackGroup())
         steady_timer(self, stats_period_s, self.log_stats, MutuallyExclusiveCallbackGroup())
+        self._recent = diag.RecentIncrease()
+        self.diagnostics = diag.NodeDiagnostics(self, "2D panoptic segmentation", self.health,
+                                                callback_group=MutuallyExclusiveCallbackGroup())
         details = {
             "onnx": f"model {self.config.onnx.model or self.config.onnx.model_config}: "
                     f"{getattr(self.segmenter, 'description', '')}, on {getattr(self.segmenter, 'provider', '?')}",
@@ -217,6 +243,24 @@ class SegmentationService(Node):
             raise SegmentationError(f"label image {labels.shape[::-1]} and color {color.shape[1::-1]} differ in size")
         return self.segmenter.segment_labels(labels, depth, key=stamp)
 
+    def health(self) -> diag.Health:
+        """What /diagnostics reports."""
+        st = self.stats
+        h = diag.Health(values={
+            diag.KEY_INPUT_RATE: st.rate.rate_hz(), diag.KEY_LATENCY: st.recent_total.median_ms(),
+            "backend_latency_ms": st.recent_backend.median_ms(), diag.KEY_RECEIVED: st.requests,
+            diag.KEY_PROCESSED: st.requests - st.failures, "failed": st.failures, "backend": self.backend,
+            diag.KEY_LAST_ERROR: st.last_error})
+        if isinstance(self.segmenter, OracleSegmenter):
+            h.values["label_images"] = self.labels.count()
+        if st.last_failed:
+            h.escalate(diag.ERROR, f"last request failed: {st.last_error}")
+        elif self._recent.grew("failed", st.failures):
+            h.escalate(diag.WARN, f"requests failed lately: {st.last_error}")
+        if h.level == diag.OK:
+            h.message = f"{st.requests} request(s) served ({self.backend})"
+        return h
+
     def log_stats(self) -> None:
         line = self.stats.report()
         if line:
@@ -226,7 +270,7 @@ class SegmentationService(Node):
         self.get_logger().warning(f"request failed: {message}")
         response.success = False
         response.message = message
-        self.stats.add(None, (time.perf_counter() - t0) * 1e3)
+        self.stats.add(None, (time.perf_counter() - t0) * 1e3, message)
         return response
 
 

@@ -1,6 +1,7 @@
 """Nodes under load and under attack, over DDS (loopback only): the mapper's services answer fast while
 it maps, paths in requests are confined to its data root, a damaged map is refused without killing it,
-entities reach late joiners, consumers survive bad mesh URIs, and every node exits cleanly on SIGTERM."""
+entities reach late joiners, consumers survive bad mesh URIs, every node reports on /diagnostics (WARN
+while the mapper's segmentation service is missing) and exits cleanly on SIGTERM."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from testsupport.ros import call_service, domain_id, spin_until
+from testsupport.ros import call_service, domain_id, spin_until, subscribe_diagnostics
 
 from scene_recon.synthetic.generate import GenerateConfig, generate_recording
 
@@ -261,14 +262,26 @@ def test_contact_graph_node_joins_late_survives_bad_mesh_uris_and_restarts(tmp_p
                 proc.kill()
 
 
+#: Every node's /diagnostics status when it runs alone, idle: (level, values it must report). The mapper
+#: runs without its segmentation service: WARN, saying so.
+IDLE_DIAGNOSTICS = {
+    "segmentation_service": ("OK", {"received": "0", "failed": "0", "backend": "none"}),
+    "panoptic_mapper": ("WARN", {"segmentation_service": "missing", "received": "0", "processed": "0",
+                                 "dropped": "0", "skipped": "0", "queue_depth": "0"}),
+    "contact_graph": ("OK", {"received": "0", "builds": "0", "skipped": "0"}),
+    "cad_replacer": ("OK", {"received": "0", "processed": "0", "objects": "0"}),
+    "rgbd_player": ("OK", {"state": "waiting for subscribers", "processed": "0", "skipped": "0"}),
+}
+
+
 @pytest.mark.parametrize("module, name, params", [
     ("segmentation_service", "segmentation_service", ("backend:=none",)),
-    ("mapper_node", "panoptic_mapper", ("use_segmentation:=false",)),
+    ("mapper_node", "panoptic_mapper", ("checkpoint.enabled:=false",)),
     ("contact_graph_node", "contact_graph", ()),
     ("cad_replacer_node", "cad_replacer", ()),
     ("rgbd_player", "rgbd_player", ("source:={bag}", "wait_for_subscribers:=1", "wait_timeout_s:=600")),
 ])
-def test_every_node_exits_cleanly_on_sigterm(module, name, params, tmp_path):
+def test_every_node_reports_diagnostics_and_exits_cleanly_on_sigterm(module, name, params, tmp_path):
     import rclpy
 
     from panoptic_mapping.dataio import CameraIntrinsics
@@ -284,11 +297,28 @@ def test_every_node_exits_cleanly_on_sigterm(module, name, params, tmp_path):
     proc = _start(module, log, env, *(p.format(bag=bag) for p in params))
     rclpy.init()
     node = rclpy.create_node("sigterm_checker")
+    diagnostics = subscribe_diagnostics(node)
     try:
         # by name: on a caller's shared domain, another test's node may still be leaving
         up = spin_until(node, lambda: name in node.get_node_names() or proc.poll() is not None, 60)
         assert up and proc.poll() is None, log.read_text()[-3000:]
-        time.sleep(1.0)  # let it settle into spinning
+        # its status on /diagnostics (about once a second; also: it has settled into spinning)
+        def reports() -> list[dict]:
+            return [s for k, v in diagnostics.items() if k.startswith(f"{name}: ") for s in v]
+
+        assert spin_until(node, lambda: len(reports()) >= 2, 15), (diagnostics, log.read_text()[-2000:])
+        assert len([k for k in diagnostics if k.startswith(f"{name}: ")]) == 1, diagnostics
+        status = reports()[-1]
+        level, expected = IDLE_DIAGNOSTICS[name]
+        assert status["level"] == level, status
+        assert {k: status["values"].get(k) for k in expected} == expected, status
+        values = status["values"]
+        assert values["last_error"] == "" and float(values["input_rate_hz"]) == 0.0, status
+        assert float(values["processing_latency_ms"]) == 0.0, status
+        if name == "panoptic_mapper":
+            assert "segmentation service" in status["message"] and "missing" in status["message"], status
+        if name == "rgbd_player":
+            assert status["hardware_id"] == "camera_color_optical_frame", status
     finally:
         node.destroy_node()
         rclpy.shutdown()

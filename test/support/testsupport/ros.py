@@ -56,3 +56,22 @@ def call_service(node, client, request, timeout: float = 30.0):
     rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
     assert future.done(), "service call timed out"
     return future.result(), time.perf_counter() - t0
+
+
+def subscribe_diagnostics(node) -> dict[str, list[dict]]:
+    """Subscribe `node` to /diagnostics; returns status name -> the statuses received, oldest first, each
+    as {"level": "OK"|"WARN"|"ERROR"|"STALE", "message", "hardware_id", "values": {key: text}}."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from ros_nodes.diagnostics import LEVEL_NAMES, QOS, TOPIC
+
+    got: dict[str, list[dict]] = {}
+
+    def on_array(msg) -> None:
+        for s in msg.status:
+            got.setdefault(s.name, []).append({"level": LEVEL_NAMES[s.level], "message": s.message,
+                                               "hardware_id": s.hardware_id,
+                                               "values": {kv.key: kv.value for kv in s.values}})
+
+    node.create_subscription(DiagnosticArray, TOPIC, on_array, QOS)
+    return got
