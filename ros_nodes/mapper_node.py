@@ -349,6 +349,15 @@ class MapperNode(Node):
         if (self.use_segmentation and not self._seg_seen and waited < self.seg_startup_wait_s
                 and not self.seg_client.service_is_ready()):
             return  # the service is starting beside us: keep the frame at the head of the queue
+        # TF travels on a topic of its own (and is taken by another executor thread): the image may be here
+        # before the pose of its instant. Looked up then, the pose would be the previous sample held forward
+        # (extrapolation up to 50 ms: a frame period), and a played bag's map would depend on which of the
+        # two callbacks ran first. Like tf2's message filter, the frame waits (at most tf_wait_s) for TF
+        # to reach its stamp; only then is a short extrapolation accepted (counted: tf_extrapolated).
+        stamp = stamp_to_ns(depth_msg.header.stamp)
+        reached = self.tf.reaches(self.map_frame, color_msg.header.frame_id, stamp)
+        if not reached and waited < self.tf_wait_s:
+            return
         try:
             frame = self._make_frame(color_msg, depth_msg)
         except TransformLookupError as exc:
@@ -361,6 +370,10 @@ class MapperNode(Node):
         self.queue.popleft()
         if frame is None:
             return
+        if not reached:
+            self.counters["tf_extrapolated"] += 1
+            self.get_logger().warning(f"frame at {stamp * 1e-9:.3f} s: no TF at its stamp after {self.tf_wait_s:g} s; "
+                                      "its pose is extrapolated from the newest TF sample", throttle_duration_sec=5.0)
         self._check_gravity(frame)
         if self.mapper.is_keyframe(frame):
             if not self.use_segmentation:
@@ -562,12 +575,15 @@ class MapperNode(Node):
             "frames_integrated": self.mapper.frames_integrated, "keyframes": self.mapper.keyframes,
             diag.KEY_DROPPED: c["dropped_backlog"], diag.KEY_SKIPPED: skipped, diag.KEY_QUEUE: len(self.queue),
             "pending_segmentations": len(self.pending), "keyframes_without_labels": unlabelled,
+            "poses_extrapolated": c["tf_extrapolated"],
             "segmentation_service": service, "unpublished_changes": bool(self._changed),
             "checkpoints": self.checkpointer.saved if self.checkpointer else 0, diag.KEY_LAST_ERROR: self.last_error})
         if self._recent.grew("dropped", c["dropped_backlog"]):
             h.escalate(diag.WARN, "dropping frames (cannot keep up)")
         if self._recent.grew("skipped", skipped):
             h.escalate(diag.WARN, "frames skipped (no pose, no camera info or a bad image)")
+        if self._recent.grew("extrapolated", c["tf_extrapolated"]):
+            h.escalate(diag.WARN, "TF lags behind the images (poses extrapolated)")
         if self._recent.grew("unlabelled", unlabelled):
             h.escalate(diag.WARN, "keyframes mapped without labels (segmentation missing, slow or failing)")
         if service == "missing":

@@ -9,7 +9,7 @@ from rclpy.callback_groups import CallbackGroup
 from rclpy.node import Node
 from tf2_msgs.msg import TFMessage
 
-from panoptic_mapping.dataio.transforms import TransformBuffer
+from panoptic_mapping.dataio.transforms import TransformBuffer, TransformLookupError
 from ros_nodes.conversions import stamp_to_ns
 from ros_nodes.qos import TF_LISTEN, TF_STATIC
 
@@ -30,6 +30,18 @@ class TFListener:
         """T_target_source at `stamp_ns` (raises TransformLookupError)."""
         with self._lock:
             return self.buffer.lookup(target, source, stamp_ns)
+
+    def reaches(self, target: str, source: str, stamp_ns: int) -> bool:
+        """Whether TF has arrived up to `stamp_ns` on every dynamic edge between the two frames (then a
+        lookup interpolates or reads a sample, as tf2's; before, it would extrapolate the newest pose
+        forward). True when the frames are joined by static edges only, or not joined at all (the
+        lookup says why)."""
+        with self._lock:
+            try:
+                span = self.buffer.time_range(source, target)
+            except TransformLookupError:
+                return True
+        return span is None or stamp_ns <= span[1]
 
     def _on_tf(self, msg: TFMessage, static: bool) -> None:
         with self._lock:

@@ -1,9 +1,10 @@
 """End to end over DDS (loopback): `scene-recon ros-run --bag` plays a short generated bag through the four
 nodes as separate processes; the settled scene equals `scene-recon run`'s on the same bag (same objects,
 classes, CAD choices, URDF joints); an independent client in this process gets a URDF that yourdfpy loads,
-TF for every link, applies a scene action and sees it take effect; the example planner client opens a
-door; the mapper killed with SIGKILL is restarted by the runner from its checkpoint; Ctrl-C (SIGINT) stops
-every node cleanly and the scene folder stays behind.
+TF for every link, applies a scene action and sees it take effect; every node reports on /diagnostics
+with its real counts (the mapper: 30 frames received and integrated, none dropped); the example planner
+client opens a door; the mapper killed with SIGKILL is restarted by the runner from its checkpoint;
+Ctrl-C (SIGINT) stops every node cleanly and the scene folder stays behind.
 
 The node set is `recon_core.ros_graph.graph_nodes`, the description the launch files start too.
 """
@@ -22,7 +23,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from testsupport.ros import call_service, domain_id, spin_until
+from testsupport.ros import call_service, domain_id, spin_until, subscribe_diagnostics
 
 from scene_recon.synthetic.generate import GenerateConfig, generate_recording
 
@@ -79,6 +80,52 @@ def _child_pid(parent: int, module: str) -> int:
     raise AssertionError(f"no child of {parent} runs {module}")
 
 
+def _check_diagnostics(node, diagnostics: dict[str, list[dict]]) -> None:
+    """Each node's /diagnostics status, once the scene has settled: the keys, and numbers that say what
+    happened (30 frames played, received and integrated, two keyframes segmented, a graph and a scene)."""
+
+    def latest(name: str) -> dict:
+        mine = [k for k in diagnostics if k.startswith(f"{name}: ")]
+        assert len(mine) == 1, (name, sorted(diagnostics))
+        return diagnostics[mine[0]][-1]
+
+    def values(name: str) -> dict[str, str]:
+        return latest(name)["values"]
+
+    nodes = ("segmentation_service", "panoptic_mapper", "contact_graph", "cad_replacer", "rgbd_player")
+    # about once a second from each node; the player's last one (finished) was sent before it exited
+    assert spin_until(node, lambda: all(any(k.startswith(f"{n}: ") for k in diagnostics) for n in nodes)
+                      and float(values("panoptic_mapper")["frames_integrated"]) == 30
+                      and values("rgbd_player")["state"] == "finished", 15), \
+        {k: v[-1] for k, v in diagnostics.items()}
+    common = {"input_rate_hz", "processing_latency_ms", "last_error"}
+    for name in nodes:
+        status = latest(name)
+        assert common <= set(status["values"]), status
+        assert status["level"] == "OK" and status["values"]["last_error"] == "", status
+    mapper = values("panoptic_mapper")
+    assert int(mapper["received"]) == 30 and int(mapper["processed"]) == 30, mapper
+    assert (mapper["dropped"], mapper["skipped"], mapper["queue_depth"]) == ("0", "0", "0"), mapper
+    assert mapper["segmentation_service"] == "ready" and mapper["keyframes_without_labels"] == "0", mapper
+    assert mapper["poses_extrapolated"] == "0", mapper  # every frame waited for the TF of its stamp
+    assert latest("panoptic_mapper")["hardware_id"] == "camera_color_optical_frame"
+    # while the bag played, the mapper saw frames coming at about its 30 fps (averaged over a 5 s window)
+    rates = [float(s["values"]["input_rate_hz"]) for k, v in diagnostics.items()
+             if k.startswith("panoptic_mapper: ") for s in v]
+    assert 0 < max(rates) <= 31, rates
+    integrate_ms = float(mapper["processing_latency_ms"])
+    assert 0 < integrate_ms < 10_000, mapper
+    seg = values("segmentation_service")
+    assert int(seg["received"]) == int(mapper["keyframes"]) >= 1 and seg["failed"] == "0", (seg, mapper)
+    assert float(seg["processing_latency_ms"]) > 0 and seg["backend"] == "oracle", seg
+    graph = values("contact_graph")
+    assert int(graph["received"]) >= 1 and int(graph["builds"]) >= 1 and int(graph["graph_nodes"]) >= 4, graph
+    replacer = values("cad_replacer")
+    assert int(replacer["processed"]) >= 1 and int(replacer["objects"]) >= 4 and replacer["failed"] == "0", replacer
+    player = values("rgbd_player")
+    assert player["processed"] == "30" and player["skipped"] == "0", player
+
+
 def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
     import rclpy
     import yourdfpy
@@ -125,6 +172,7 @@ def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
         node.create_subscription(TFMessage, "/tf", on_tf, TF_LISTEN)
         node.create_subscription(TFMessage, "/tf_static", on_tf, TF_STATIC)
         statuses: list[dict] = []
+        diagnostics = subscribe_diagnostics(node)
         node.create_subscription(String, "mapper_status", lambda m: statuses.append(json.loads(m.data)), STATUS)
         exported = out / "scene" / "replacement.json"
         assert spin_until(node, lambda: exported.is_file() or runner.poll() is not None, 180), log.read_text()[-4000:]
@@ -135,6 +183,8 @@ def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
         shutil.copytree(out / "map" / "final", tmp_path / "settled_map")
         text = log.read_text()
         assert "frames integrated 30 " in text and "dropped 0" in text, text[-4000:]
+
+        _check_diagnostics(node, diagnostics)
 
         # the URDF: yourdfpy loads and validates it; every link has TF
         assert spin_until(node, lambda: bool(descriptions), 30)
