@@ -353,10 +353,11 @@ class MapperNode(Node):
         # before the pose of its instant. Looked up then, the pose would be the previous sample held forward
         # (extrapolation up to 50 ms: a frame period), and a played bag's map would depend on which of the
         # two callbacks ran first. Like tf2's message filter, the frame waits (at most tf_wait_s) for TF
-        # to reach its stamp; only then is a short extrapolation accepted (counted: tf_extrapolated).
+        # to reach its stamp; only then is a short extrapolation accepted (counted: tf_extrapolated, as is a
+        # frame just before the first TF sample, whose pose is that sample's).
         stamp = stamp_to_ns(depth_msg.header.stamp)
-        reached = self.tf.reaches(self.map_frame, color_msg.header.frame_id, stamp)
-        if not reached and waited < self.tf_wait_s:
+        span = self.tf.time_range(self.map_frame, color_msg.header.frame_id)
+        if span is not None and stamp > span[1] and waited < self.tf_wait_s:
             return
         try:
             frame = self._make_frame(color_msg, depth_msg)
@@ -370,10 +371,11 @@ class MapperNode(Node):
         self.queue.popleft()
         if frame is None:
             return
-        if not reached:
+        if span is not None and not span[0] <= stamp <= span[1]:
             self.counters["tf_extrapolated"] += 1
-            self.get_logger().warning(f"frame at {stamp * 1e-9:.3f} s: no TF at its stamp after {self.tf_wait_s:g} s; "
-                                      "its pose is extrapolated from the newest TF sample", throttle_duration_sec=5.0)
+            self.get_logger().warning(f"frame at {stamp * 1e-9:.3f} s: no TF around its stamp (TF from "
+                                      f"{span[0] * 1e-9:.3f} to {span[1] * 1e-9:.3f} s after waiting up to "
+                                      f"{self.tf_wait_s:g} s); its pose is extrapolated", throttle_duration_sec=5.0)
         self._check_gravity(frame)
         if self.mapper.is_keyframe(frame):
             if not self.use_segmentation:

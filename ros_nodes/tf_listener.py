@@ -31,17 +31,15 @@ class TFListener:
         with self._lock:
             return self.buffer.lookup(target, source, stamp_ns)
 
-    def reaches(self, target: str, source: str, stamp_ns: int) -> bool:
-        """Whether TF has arrived up to `stamp_ns` on every dynamic edge between the two frames (then a
-        lookup interpolates or reads a sample, as tf2's; before, it would extrapolate the newest pose
-        forward). True when the frames are joined by static edges only, or not joined at all (the
-        lookup says why)."""
+    def time_range(self, target: str, source: str) -> tuple[int, int] | None:
+        """(first, last) stamp (ns) where every dynamic edge between the two frames has TF; None when they are
+        joined by static edges only, or not joined at all (a lookup then says why). A stamp after `last` is
+        one whose TF has not arrived yet: looked up now, the newest pose would be held forward."""
         with self._lock:
             try:
-                span = self.buffer.time_range(source, target)
+                return self.buffer.time_range(source, target)
             except TransformLookupError:
-                return True
-        return span is None or stamp_ns <= span[1]
+                return None
 
     def _on_tf(self, msg: TFMessage, static: bool) -> None:
         with self._lock:
