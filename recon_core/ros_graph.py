@@ -154,6 +154,10 @@ def graph_nodes(opts: GraphOptions) -> list[NodeSpec]:
         # a recording is integrated in its recorded order, as `scene-recon run` does: the same map; and
         # a longer queue, since frames wait behind keyframes there (30 dropped one of 60 320x240 frames)
         "in_order": bool(opts.bag), "max_queue": 120 if opts.bag else 30,
+        # the player's /tf is reliable: a reliable reader gets the poses sent while discovery completes (a
+        # best-effort one lost the first 6 of a bag on a loaded machine), and a frame whose camera info or
+        # pose comes late that way waits for it longer than a live camera's would
+        "tf_reliable": bool(opts.bag), "tf_wait_s": 3.0 if opts.bag else 0.5,
     }, respawn_parameters={"resume": True})
     graph = NodeSpec("contact_graph", "contact_graph_node", "ros_nodes.contact_graph_node", {
         **common, **config_file("contact_graph"), "mesh_root": map_root,
@@ -173,8 +177,9 @@ def graph_nodes(opts: GraphOptions) -> list[NodeSpec]:
             "camera_info_topic": opts.camera_info_topic,
             # start once the mapper listens (and the oracle service, which reads the labels): no frame lost
             "wait_for_subscribers": 1, "labels_topic_in": LABELS_TOPIC if backend == "oracle" else "",
-            # the mapper's TF subscription is best effort: /tf sent before it has matched the player is lost
-            # for good (the first 3 frames of a bag once); 0.5 s after the counts went up was not always enough
+            # the player sees its writers match before the readers have matched them: samples sent in between
+            # are lost to a best-effort reader and come late to a reliable one (the mapper's /tf is reliable
+            # with bags, `tf_reliable`); 0.5 s after the counts went up was not always enough
             "wait_grace_s": 1.5,
             "wait_for_label_subscribers": 1 if backend == "oracle" else 0,
         }))

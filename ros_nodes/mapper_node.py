@@ -113,6 +113,8 @@ class MapperNodeConfig(Settings):
     segmentation_startup_wait_s: float = setting(
         5.0, min=0.0, doc="until the service was first seen, a keyframe waits this long (s) for it")
     tf_wait_s: float = setting(0.5, min=0.0, doc="how long (s) a frame waits for its pose and camera info")
+    tf_reliable: bool = setting(False, doc="subscribe /tf reliable (a played recording: no pose is lost while "
+                                "discovery completes; matches reliable TF publishers only)")
     publish_period_s: float = setting(2.0, min=0.0, min_exclusive=True,
                                       doc="entities and markers are published at most this often (s)")
     publish_meshes: bool = setting(True, doc="entity messages carry their meshes")
@@ -177,7 +179,7 @@ class MapperNode(Node):
         inputs = MutuallyExclusiveCallbackGroup()
         self.map_group = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
-        self.tf = TFListener(self, callback_group=MutuallyExclusiveCallbackGroup())
+        self.tf = TFListener(self, callback_group=MutuallyExclusiveCallbackGroup(), reliable=settings.tf_reliable)
         # camera topics: RELIABLE or BEST_EFFORT, whatever the driver offers (ros_nodes.sensor_subscription)
         # (a recording, in_order: a deep history, so a frame the mapper is slow to take is not overwritten)
         depth = RECORDING_DEPTH if self.in_order else 0

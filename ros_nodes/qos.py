@@ -43,3 +43,10 @@ TF_DYNAMIC = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=
 #: alike, and a reliable reader stalled here (only the first samples of a replayed /tf arrived
 #: while the image streams flowed, with no message-lost event); poses are interpolated anyway.
 TF_LISTEN = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+#: The same, reliable, for a played recording (the mapper's `tf_reliable`): a best-effort reader loses for
+#: good the /tf samples sent before it has matched the player's writer (the player only sees its writer
+#: match the reader): on a loaded machine the first 6 frames' poses of a bag were lost even after the
+#: player's 1.5 s grace, and the frame just before the first sample took that sample's pose (a map unlike
+#: `scene-recon run`'s). A reliable reader matches reliable publishers only (the player's /tf is).
+TF_LISTEN_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)

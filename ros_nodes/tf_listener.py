@@ -11,17 +11,20 @@ from tf2_msgs.msg import TFMessage
 
 from panoptic_mapping.dataio.transforms import TransformBuffer, TransformLookupError
 from ros_nodes.conversions import stamp_to_ns
-from ros_nodes.qos import TF_LISTEN, TF_STATIC
+from ros_nodes.qos import TF_LISTEN, TF_LISTEN_RELIABLE, TF_STATIC
 
 
 class TFListener:
     """Feeds /tf and /tf_static into a TransformBuffer with a bounded history per dynamic edge."""
 
     def __init__(self, node: Node, max_extrapolation_s: float = 0.05, max_gap_s: float = 1.0,
-                 max_samples_per_edge: int = 2000, callback_group: CallbackGroup | None = None):
+                 max_samples_per_edge: int = 2000, callback_group: CallbackGroup | None = None,
+                 reliable: bool = False):
+        """`reliable`: subscribe /tf reliable (matches reliable publishers only; see qos.TF_LISTEN_RELIABLE)."""
         self.buffer = TransformBuffer(int(max_extrapolation_s * 1e9), int(max_gap_s * 1e9), max_samples_per_edge)
         self._lock = threading.Lock()  # callbacks may run on another executor thread than lookups
-        node.create_subscription(TFMessage, "/tf", lambda m: self._on_tf(m, False), TF_LISTEN,
+        node.create_subscription(TFMessage, "/tf", lambda m: self._on_tf(m, False),
+                                 TF_LISTEN_RELIABLE if reliable else TF_LISTEN,
                                  callback_group=callback_group)
         node.create_subscription(TFMessage, "/tf_static", lambda m: self._on_tf(m, True), TF_STATIC,
                                  callback_group=callback_group)
