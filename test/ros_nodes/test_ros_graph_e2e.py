@@ -258,18 +258,18 @@ def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
     assert "nodes that did not exit cleanly" not in text, text[-3000:]
     assert (out / "scene" / "scene.urdf").is_file() and (out / "map" / "final" / "entities.json").is_file()
 
-    # one code path: the same scene as `scene-recon run` on the same bag. Object names and classes always;
-    # when the mapper made the very same map (the usual case), everything after it must be the same too:
-    # contact graph, CAD choices and the URDF's joints. (The map can differ: the mapper's TF subscription
-    # is best effort, and a /tf sample lost on the loaded test machine is interpolated from its
-    # neighbours instead of read from the bag; seen in about one run of three.)
+    # one code path: the same map, contact graph, CAD choices and URDF joints as `scene-recon run` on the same
+    # bag. (The map used to differ in about one run of three on the loaded machine: the mapper's best-effort
+    # /tf reader lost the first poses of the bag while discovery completed, and the frame just before the
+    # first TF sample took that sample's pose. /tf is reliable with bags now, frames wait for the TF of their
+    # stamp, and the mapper's /diagnostics above says every frame came with its own pose and labels.)
     (ros_scene, ros_joints), (offline_scene, offline_joints) = (_scene(tmp_path / "settled"),
                                                                 _scene(tmp_path / "offline" / "scene"))
     assert {n: c for n, (c, *_) in ros_scene.items()} == {n: c for n, (c, *_) in offline_scene.items()}
     same_map = _same_map(tmp_path / "settled_map", tmp_path / "offline" / "map")
-    if same_map:
-        assert ros_scene == offline_scene, (ros_scene, offline_scene)
-        assert ros_joints == offline_joints
+    assert same_map, "the ROS graph mapped the bag unlike scene-recon run (see the mapper's diagnostics)"
+    assert ros_scene == offline_scene, (ros_scene, offline_scene)
+    assert ros_joints == offline_joints
     same_cad = sum(ros_scene[n] == offline_scene[n] for n in ros_scene)
     ros_classes = sorted(c for c, *_ in ros_scene.values())
     assert "cabinet" in ros_classes and len(ros_classes) >= 4, ros_classes
