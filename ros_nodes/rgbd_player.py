@@ -23,6 +23,7 @@ import time
 from dataclasses import dataclass
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -75,6 +76,12 @@ class RGBDPlayerConfig(Settings):
     #: publisher in turn; frames sent in between can be lost. Measured: 1 of 30 frames lost now and
     #: then without a grace period, none with 0.5 s.
     wait_grace_s: float = setting(0.5, min=0.0, doc="once the subscribers are there, wait this long (s) more")
+    #: A reliable reader that matched late, or fell behind, recovers what it missed from the writers' history,
+    #: which goes away with the player: after the last frame the player stays until every reliable
+    #: subscriber has acknowledged everything (at most this long). Leaving 0.5 s after the last frame, the
+    #: mapper's /tf reader of a loaded machine missed the last 8 poses of a 30-frame bag.
+    drain_timeout_s: float = setting(10.0, min=0.0, doc="after playing, wait at most this long (s) for reliable "
+                                     "subscribers to acknowledge every message")
 
 
 class RGBDPlayer(Node):
@@ -91,6 +98,7 @@ class RGBDPlayer(Node):
         self.wait_for_label_subscribers = settings.wait_for_label_subscribers
         self.wait_timeout_s = settings.wait_timeout_s
         self.wait_grace_s = settings.wait_grace_s
+        self.drain_timeout_s = settings.drain_timeout_s
         self._matched_at: float | None = None
         self.start_offset_ns = int(settings.start_offset_s * 1e9)
         self.clock_period_s = settings.clock_period_s
@@ -227,6 +235,19 @@ class RGBDPlayer(Node):
         self.lateness_ms.add(1000 * (now - due))
         self._pending = None
 
+    def drain(self) -> bool:
+        """Wait (at most `drain_timeout_s`) until every reliable subscriber has acknowledged every message;
+        False (and a warning) when one has not."""
+        deadline = time.monotonic() + self.drain_timeout_s
+        pubs = [self.pub_tf, self.pub_info, self.pub_color, self.pub_depth, self.pub_labels]
+        for pub in pubs:
+            left = max(deadline - time.monotonic(), 0.0)
+            if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+                self.get_logger().warning(f"{pub.topic_name}: a subscriber has not acknowledged every message "
+                                          f"after {self.drain_timeout_s:g} s; leaving anyway")
+                return False
+        return True
+
     def _error(self, message: str) -> None:
         self.get_logger().error(message)
         self.last_error, self._failed, self.finished = message, True, True
@@ -270,7 +291,9 @@ def main(args: list[str] | None = None) -> int:
         while rclpy.ok() and not node.finished and not stop.is_set():
             rclpy.spin_once(node, timeout_sec=0.1)
         node.diagnostics.publish()  # the final state (finished / failed) before the node goes away
-        # let reliable subscribers drain the last messages before the publishers go away
+        if not stop.is_set():
+            node.drain()
+        # (and a moment for the last diagnostics)
         end = time.monotonic() + 0.5
         while rclpy.ok() and time.monotonic() < end and not stop.is_set():
             rclpy.spin_once(node, timeout_sec=0.05)
