@@ -48,5 +48,8 @@ TF_LISTEN = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=R
 #: good the /tf samples sent before it has matched the player's writer (the player only sees its writer
 #: match the reader): on a loaded machine the first 6 frames' poses of a bag were lost even after the
 #: player's 1.5 s grace, and the frame just before the first sample took that sample's pose (a map unlike
-#: `scene-recon run`'s). A reliable reader matches reliable publishers only (the player's /tf is).
+#: `scene-recon run`'s). A reliable reader matches reliable publishers only (the player's /tf is). Such a
+#: reader recovers what it missed from the writer's history, so the player stays until every reliable
+#: subscriber has acknowledged (`drain_timeout_s`): leaving 0.5 s after its last frame, it took the last 8
+#: poses with it once (maybe the "stall" noted above).
 TF_LISTEN_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
