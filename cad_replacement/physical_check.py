@@ -35,6 +35,14 @@ from recon_core.geometry.polygon import point_segment_distances, points_in_polyg
 MAX_PENETRATION_M = 0.01
 #: Rounds of min-conflicts (the paper: 10).
 MAX_ROUNDS = 10
+#: Clearance (m) kept between a footprint and the outline of an enclosed support surface ...
+CONTAINED_MARGIN = 0.005
+#: ... and the largest horizontal move (m) made to get it there: farther, the fit (or the graph) is
+#: wrong about where the object is, and moving it would only hide that.
+CONTAINED_MAX_SHIFT = 0.05
+#: ... and at most this share of the footprint's narrow side (a book standing 2 cm thick is not
+#: moved by its own thickness: that is a different place, not a correction).
+CONTAINED_MAX_SHARE = 0.3
 
 
 @dataclass
@@ -327,6 +335,48 @@ def _onto_surface(centre: NDArray[np.float64], polygon: NDArray[np.float64], mar
     return (trial[inside[0]] if len(inside) else target) - centre
 
 
+def _footprint_corners(obj: PlacedObject) -> NDArray[np.float64]:
+    """xy of the object's CAD box corners in the map (8, 2): its footprint on a surface."""
+    f = obj.model.features
+    signs = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+    corners = f.box_center + signs * f.box_size
+    return (corners @ obj.pose[:3, :3].T + obj.pose[:3, 3])[:, :2]
+
+
+def _into_surface(corners: NDArray[np.float64], polygon: NDArray[np.float64],
+                  margin: float) -> NDArray[np.float64] | None:
+    """Smallest horizontal move that puts the whole footprint (``corners``) at least ``margin``
+    inside the convex ``polygon``; None when the footprint does not fit in it.
+
+    Each edge is a half-plane constraint on the move t: n.t >= b (n the inward normal); the
+    minimum-norm feasible t is 0, the projection onto one constraint's line or the meeting point
+    of two of them, so those few candidates are enumerated and the shortest feasible one is taken.
+    """
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    edge = b - a
+    length = np.linalg.norm(edge, axis=1)
+    ok = length > 1e-9
+    if int(ok.sum()) < 3:
+        return None
+    a, edge, length = a[ok], edge[ok], length[ok]
+    area2 = float(np.sum(polygon[:, 0] * np.roll(polygon[:, 1], -1) - np.roll(polygon[:, 0], -1) * polygon[:, 1]))
+    sign = 1.0 if area2 > 0 else -1.0  # counter-clockwise: the inward normal is the edge turned left
+    n = sign * np.c_[-edge[:, 1], edge[:, 0]] / length[:, None]
+    need = (margin + np.einsum("ej,ej->e", n, a)[None] - corners @ n.T).max(axis=0)  # b_e per edge
+    cands = [np.zeros(2)] + [need[e] * n[e] for e in range(len(n)) if need[e] > 0]
+    for i in range(len(n)):
+        for j in range(i + 1, len(n)):
+            m = np.array([n[i], n[j]])
+            if abs(np.linalg.det(m)) > 1e-9:
+                cands.append(np.linalg.solve(m, [need[i], need[j]]))
+    pts = np.array(cands)
+    feasible = np.all(pts @ n.T >= need[None] - 1e-9, axis=1)
+    if not np.any(feasible):
+        return None
+    pts = pts[feasible]
+    return pts[int(np.argmin(np.linalg.norm(pts, axis=1)))]
+
+
 def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
     """Final snap (Sec. 4.4): rest every supported object on its parent's CAD support surface.
 
@@ -354,6 +404,14 @@ def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
         move[2] = spot.height - bottom
         if parent.model.source != "box":  # layout slabs are the room: nothing falls off the floor
             move[:2] = _onto_surface(centre, spot.polygon, 0.5 * radius)
+            if spot.clearance is not None:
+                # An enclosed surface (a shelf, a drawer) has walls around it: the whole footprint
+                # goes inside when it fits (a book overhanging a drawer's side sits on its wall, and
+                # the simulator pushes it off), else the centre rule above stands.
+                inside = _into_surface(_footprint_corners(obj) + move[:2], spot.polygon, CONTAINED_MARGIN)
+                if inside is not None and float(np.linalg.norm(inside)) <= min(CONTAINED_MAX_SHIFT,
+                                                                               CONTAINED_MAX_SHARE * 2.0 * radius):
+                    move[:2] += inside
         gaps[obj.name] = abs(float(move[2]))
         for o in [obj, *descendants(scene, obj.name)]:
             o.pose[:3, 3] += move

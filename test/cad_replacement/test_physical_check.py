@@ -164,6 +164,53 @@ def test_snap_measures_height_in_the_map_for_a_book_lying_on_a_shelf():
     assert bottom == pytest.approx(shelf.height, abs=1e-6)
 
 
+@pytest.mark.parametrize(("overhang", "moved_in"), [(0.025, True), (0.09, False)])
+def test_a_book_overhanging_a_shelf_side_is_moved_wholly_inside_when_a_short_shift_does_it(overhang, moved_in):
+    """A shelf inside a cabinet has walls: a lying book whose footprint sticks 2.5 cm past the shelf's
+    outline sits on the side wall and the simulator pushes it off (seen in PyBullet and MuJoCo). The
+    snap shifts it wholly inside; 9 cm off, the fit is wrong about where the book is and it stays."""
+    from cad_replacement.actions import support_spots
+    from cad_replacement.physical_check import CONTAINED_MARGIN, _footprint_corners, _inside_margin, snap_to_supports
+
+    cabinet = build_model("cabinet", 0)
+    cab = PlacedObject("cabinet_1", "cabinet", cabinet, _pose(0, 0, 0), parent="floor")
+    book = build_model("book", 0)
+    lying = np.eye(4)
+    lying[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
+    thick = float(book.size[1])
+    shelf = next(sp for sp in support_spots(cab) if sp.clearance is not None and sp.clearance > 1.2 * thick
+                 and sp.link == cabinet.root_link)
+    lo, hi = shelf.polygon.min(axis=0), shelf.polygon.max(axis=0)
+    obj = PlacedObject("book_1", "book", book, _pose(0.0, 0.0, 0.0) @ lying, parent="cabinet_1",
+                       support="floating", movable=True)
+    corners = _footprint_corners(obj)
+    # the footprint's far side `overhang` past the shelf's +y side, centred in x
+    obj.pose[0, 3] += 0.5 * (lo[0] + hi[0]) - corners[:, 0].mean()
+    obj.pose[1, 3] += hi[1] + overhang - corners[:, 1].max()
+    obj.pose[2, 3] += shelf.height - float((book.mesh().vertices @ obj.pose[:3, :3].T + obj.pose[:3, 3])[:, 2].min())
+    scene = ReplacedScene("room", [PlacedObject("floor", "floor", box_model("floor", (6, 6, 0.05)),
+                                                _pose(0, 0, -0.05)), cab, obj])
+    snap_to_supports(scene)
+    worst = float(_inside_margin(_footprint_corners(scene.object("book_1")), shelf.polygon).min())
+    if moved_in:
+        assert worst >= CONTAINED_MARGIN - 1e-6
+    else:
+        assert worst < -0.05
+
+
+def test_into_surface_finds_the_shortest_move_or_says_it_does_not_fit():
+    from cad_replacement.physical_check import _into_surface
+
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    foot = np.array([[-0.1, 0.2], [0.2, 0.2], [0.2, 0.5], [-0.1, 0.5]])
+    assert np.allclose(_into_surface(foot, square, 0.0), [0.1, 0.0])
+    assert np.allclose(_into_surface(foot, square[::-1], 0.01), [0.11, 0.0])  # either winding
+    corner = np.array([[0.9, 0.95], [1.1, 0.95], [1.1, 1.05], [0.9, 1.05]])
+    assert np.allclose(_into_surface(corner, square, 0.0), [-0.1, -0.05])  # two sides at once
+    assert np.allclose(_into_surface(foot + 0.3, square, 0.0), [0.0, 0.0])  # already inside
+    assert _into_surface(foot * 10, square, 0.0) is None  # larger than the surface
+
+
 def test_neighbours_on_one_surface_are_slid_apart_after_the_snap():
     """Two boxes fitted side by side overlap by 1.5 cm (library models a little too big): the smaller
     slides away along the line between them and both stay on the table."""
