@@ -94,6 +94,13 @@ class GravityConfig(Settings):
     #: z: still estimate up from the window and warn past `warn_deg` (the input is not rotated).
     check_z: bool = True
     refine_warn_deg: float = setting(2.0, min=0.0, max=180.0)
+    #: IMU check (the mapper node's `imu_topic`): accelerometer readings averaged for the estimate,
+    #: how far (m/s^2) their mean may be from standard gravity (farther: the platform accelerated, or
+    #: the units are not m/s^2), and the median angle (deg) of single readings from the mean beyond
+    #: which the platform was shaking too much to tell up.
+    imu_samples: int = setting(100, min=1)
+    imu_max_g_error: float = setting(1.0, min=0.0, min_exclusive=True)
+    imu_max_spread_deg: float = setting(10.0, min=0.0, min_exclusive=True, max=90.0)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -418,6 +425,85 @@ class GravityMonitor:
                 f"the {result.method} over {result.frames} frames): the map, its boxes, "
                 "planes and supports assume +z up; make the fixed frame gravity aligned (TF from an "
                 "IMU or a corrected map frame)")
+
+
+#: Standard gravity (m/s^2): what an accelerometer at rest reads, pointing up (the specific force).
+STANDARD_GRAVITY = 9.80665
+
+
+class AccelerometerCheck:
+    """Up of a fixed frame from IMU accelerometer readings rotated into it.
+
+    An accelerometer measures the specific force: at rest +g pointing up, plus whatever the platform
+    accelerates by, which averages out over a window of a smoothly moving robot. ``add`` takes (N, 3)
+    readings already expressed in the fixed frame (m/s^2; the caller rotates them with TF); the
+    estimate is made once ``cfg.imu_samples`` readings are in, and refused (``ok`` False, with the
+    reason) when their mean is not about g or single readings scatter too much. Non-finite readings
+    are dropped (a driver's NaN must not reach the record)."""
+
+    def __init__(self, cfg: GravityConfig | None = None) -> None:
+        self.cfg = cfg or GravityConfig()
+        self._sum = np.zeros(3)
+        self._readings: list[np.ndarray] = []
+        self.count = 0
+        self.dropped = 0
+        self.result: GravityEstimate | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.result is not None
+
+    def add(self, readings: np.ndarray) -> GravityEstimate | None:
+        """Add readings; returns the estimate when this call completes the window (else None)."""
+        if self.result is not None:
+            return None
+        r = np.asarray(readings, np.float64).reshape(-1, 3)
+        good = np.all(np.isfinite(r), axis=1)
+        self.dropped += int((~good).sum())
+        r = r[good]
+        if len(r):
+            self._readings.append(r)
+            self.count += len(r)
+        if self.count < self.cfg.imu_samples:
+            return None
+        self.result = self.estimate()
+        self._readings = []
+        return self.result
+
+    def estimate(self) -> GravityEstimate:
+        """The estimate from the readings so far (also before the window is full)."""
+        if self.result is not None:
+            return self.result
+        if not self._readings:
+            return GravityEstimate(Z_UP.copy(), False, "imu", "no finite accelerometer reading")
+        r = np.concatenate(self._readings)
+        mean = r.mean(axis=0)
+        g = float(np.linalg.norm(mean))
+        if abs(g - STANDARD_GRAVITY) > self.cfg.imu_max_g_error:
+            return GravityEstimate(Z_UP.copy(), False, "imu", f"the mean reading is {g:.2f} m/s^2, not about "
+                                   f"{STANDARD_GRAVITY:.2f}: the platform accelerated or the units are not m/s^2",
+                                   samples=len(r))
+        up = mean / g
+        norms = np.maximum(np.linalg.norm(r, axis=1), 1e-12)
+        spread = float(np.degrees(np.median(np.arccos(np.clip(r @ up / norms, -1.0, 1.0)))))
+        if spread > self.cfg.imu_max_spread_deg:
+            return GravityEstimate(Z_UP.copy(), False, "imu", f"single readings scatter {spread:.1f} deg (median) "
+                                   "around their mean: the platform was shaking", samples=len(r))
+        return GravityEstimate(up, True, "imu", support=1.0, samples=len(r))
+
+    def record(self) -> dict[str, Any]:
+        """The ``imu`` part of the map's gravity record: the estimate and a one-line verdict."""
+        est = self.estimate()
+        out: dict[str, Any] = {**est.as_dict(), "provisional": not self.done, "dropped_non_finite": self.dropped}
+        if not est.ok:
+            out["note"] = f"IMU gravity check: no estimate ({est.reason})"
+        elif est.angle_deg > self.cfg.warn_deg:
+            out["note"] = (f"the fixed frame's up is {est.angle_deg:.1f} deg from its +z by the IMU ({est.samples} "
+                           "readings): the map, its boxes, planes and supports assume +z up; make the fixed frame "
+                           "gravity aligned")
+        else:
+            out["note"] = f"IMU gravity check: the fixed frame's +z is up ({est.angle_deg:.1f} deg from it)"
+        return out
 
 
 def load_alignment(path: str | Path) -> np.ndarray:

@@ -52,7 +52,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from scene_recon_interfaces.msg import PanopticEntityArray
 from scene_recon_interfaces.srv import ExtractEntities, LoadMap, ResetMap, SaveMap, SegmentImage
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, Imu
 from std_msgs.msg import String
 from visualization_msgs.msg import MarkerArray
 
@@ -61,7 +61,7 @@ from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.dataio import DataInputConfig
 from panoptic_mapping.dataio.transforms import TransformLookupError
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
-from panoptic_mapping.gravity import GravityMonitor
+from panoptic_mapping.gravity import AccelerometerCheck, GravityMonitor
 from panoptic_mapping.mapper import MapSnapshot, PanopticMapper
 from panoptic_mapping.pipeline import class_metas
 from recon_core.classes import load_class_table
@@ -132,6 +132,10 @@ class MapperNodeConfig(Settings):
     gravity_window_frames: int = setting(0, min=0, doc="frames the gravity check reads (0: gravity.window_frames "
                                          "of config/data.yaml)")
     gravity_stride: int = setting(0, min=0, doc="every n-th frame goes to the gravity check (0: gravity.stride)")
+    imu_topic: str = setting("", doc="sensor_msgs/Imu topic whose accelerometer checks the map frame's up (TF "
+                             "rotates each reading into the map frame; the verdict goes to the map's gravity "
+                             "record as `imu`); empty: no IMU")
+    imu_samples: int = setting(0, min=0, doc="readings the IMU check averages (0: gravity.imu_samples)")
 
 
 class MapperNode(Node):
@@ -159,6 +163,8 @@ class MapperNode(Node):
         # cheaper than the CLI's (it runs inside the integration loop): a quarter of the pixels
         gcfg.downsample, gcfg.samples_per_frame = max(gcfg.downsample, 4), min(gcfg.samples_per_frame, 1500)
         self.gravity_monitor = GravityMonitor(self.gravity_config) if settings.gravity_check else None
+        gcfg.imu_samples = settings.imu_samples or gcfg.imu_samples
+        self.imu_check = AccelerometerCheck(gcfg) if settings.imu_topic else None
         # the map is guarded by `lock`; a service waiting for it makes the integration loop step
         # aside (`_services_waiting`), so a service answers within one frame's integration time
         self.lock = threading.Lock()
@@ -187,6 +193,9 @@ class MapperNode(Node):
                             SensorSubscription(self, Image, settings.depth_topic, self._on_depth, inputs, depth=depth),
                             SensorSubscription(self, CameraInfo, settings.camera_info_topic, self._on_info, inputs,
                                                depth=depth)]
+        if settings.imu_topic:  # its own group: 100-400 Hz of tiny messages never wait for a frame
+            self.imu_sub = SensorSubscription(self, Imu, settings.imu_topic, self._on_imu,
+                                              MutuallyExclusiveCallbackGroup())
         self.seg_client = self.create_client(SegmentImage, settings.segmentation_service)
         self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", ENTITIES)
         self.pub_markers = self.create_publisher(MarkerArray, "panoptic_map_markers", 1)
@@ -400,10 +409,39 @@ class MapperNode(Node):
     def _snapshot(self) -> MapSnapshot:
         """A copy of the map to write (caller holds the map's turn); a gravity check still short of its
         window puts its provisional estimate into the record first, so an early save says it too."""
-        mon = self.gravity_monitor
-        if mon is not None and not mon.done:
-            self.mapper.gravity = mon.record()
+        if (self.gravity_monitor is not None and not self.gravity_monitor.done) or \
+                (self.imu_check is not None and not self.imu_check.done):
+            self.mapper.gravity = self._gravity_record()
         return self.mapper.snapshot()
+
+    def _gravity_record(self) -> dict:
+        """The map's gravity record: the depth check's (GravityMonitor), with the IMU check's as `imu`."""
+        mon = self.gravity_monitor
+        out = mon.record() if mon is not None else dict(self.mapper.gravity)
+        if self.imu_check is not None:
+            out["imu"] = self.imu_check.record()
+        return out
+
+    def _on_imu(self, msg: Imu) -> None:
+        """Accelerometer reading -> the map frame (TF at its stamp) -> the IMU gravity check."""
+        check = self.imu_check
+        if check is None or check.done:
+            return
+        try:
+            pose = self.tf.lookup(self.map_frame, msg.header.frame_id, stamp_to_ns(msg.header.stamp))
+        except TransformLookupError:
+            self.counters["imu_without_tf"] += 1
+            return
+        a = msg.linear_acceleration
+        result = check.add(pose[:3, :3] @ np.array([a.x, a.y, a.z], np.float64))
+        if result is None:
+            return
+        self.mapper.gravity = record = self._gravity_record()
+        note = record["imu"]["note"]
+        if result.ok and result.angle_deg > check.cfg.warn_deg:
+            self.get_logger().warning(note)
+        else:
+            self.get_logger().info(note)
 
     def _check_gravity(self, frame: RGBDFrame) -> None:
         """Feed the gravity check (first frames only); its verdict goes to the map's gravity record."""
@@ -413,7 +451,7 @@ class MapperNode(Node):
         result = mon.feed(frame.depth, frame.intrinsics, frame.pose)
         if result is None:
             return
-        self.mapper.gravity = mon.record()
+        self.mapper.gravity = self._gravity_record()
         if mon.warning:
             self.get_logger().warning(mon.warning)
         else:

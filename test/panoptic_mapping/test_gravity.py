@@ -372,3 +372,40 @@ def test_gravity_monitor_reports_a_provisional_estimate_before_its_window_is_ful
     for depth, pose in frames[2:]:
         mon.feed(depth, sim.intrinsics, TILT @ pose)
     assert mon.estimator is not None and mon.estimator.frames == len(frames)
+
+
+def _rot_x(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+
+
+def test_accelerometer_check_finds_a_tilted_frames_up_and_refuses_what_is_not_gravity():
+    from panoptic_mapping.gravity import STANDARD_GRAVITY, AccelerometerCheck
+
+    rng = np.random.default_rng(0)
+    cfg = GravityConfig(imu_samples=200)
+    true_up = _rot_x(12.0) @ Z  # the fixed frame's +z is 12 deg off up
+    # a robot driving: gravity plus its own accelerations (zero mean) plus sensor noise, one NaN sample
+    readings = STANDARD_GRAVITY * true_up + rng.normal(0, 0.3, (200, 3))
+    readings[7] = np.nan
+    check = AccelerometerCheck(cfg)
+    assert check.add(readings[:150]) is None and not check.done
+    early = check.record()
+    assert early["provisional"] and early["ok"] and early["samples"] == 149
+    est = check.add(np.r_[readings[150:], readings[:1]])
+    assert est is not None and est.ok and est.method == "imu" and check.done
+    assert angle_deg(est.up, true_up) < 0.5 and abs(est.angle_deg - 12.0) < 0.5
+    rec = check.record()
+    assert not rec["provisional"] and rec["dropped_non_finite"] == 1 and "deg from its +z by the IMU" in rec["note"]
+    assert "the fixed frame's up is" in rec["note"]
+    # an IMU in g, not m/s^2: refused with the reason, never a made-up up
+    in_g = AccelerometerCheck(cfg).add(readings[np.isfinite(readings[:, 0])][:200] / STANDARD_GRAVITY)
+    assert in_g is None  # (one reading short: 199 finite)
+    units = AccelerometerCheck(GravityConfig(imu_samples=100)).add(np.tile(true_up, (100, 1)))
+    assert units is not None and not units.ok and "not about 9.81" in units.reason
+    # shaking: readings scattered widely around their mean
+    shaky = STANDARD_GRAVITY * Z + rng.normal(0, 6.0, (300, 3))
+    shake = AccelerometerCheck(GravityConfig(imu_samples=300, imu_max_g_error=5.0)).add(shaky)
+    assert shake is not None and not shake.ok and "shaking" in shake.reason
+    nothing = AccelerometerCheck(cfg).record()
+    assert not nothing["ok"] and "no finite" in nothing["note"]
