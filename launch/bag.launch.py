@@ -1,11 +1,13 @@
 """All four stages on a recording: the player (with /clock) + segmentation, mapper, contact graph, CAD replacer.
 
-    ros2 launch scene_recon bag.launch.py bag:=/path/to/scene.mcap [rate:=0.5] [backend:=oracle] ...
+    ros2 launch scene_recon bag.launch.py bag:=/path/to/scene.mcap [rate:=0.5] [backend:=oracle] [preset:=fast] ...
     rviz2 -d $(ros2 pkg prefix scene_recon)/share/scene_recon/config/scene.rviz
 
 The node list and every parameter come from `recon_core.ros_graph.graph_nodes`, the description
 `scene-recon ros-run --bag` starts as processes (and its end-to-end test checks); this file only
-declares the arguments and turns each NodeSpec into a launch_ros Node.
+declares the arguments and turns each NodeSpec into a launch_ros Node. `preset:=fast|balanced|accurate`
+applies config/presets/NAME.yaml to the nodes' parameters, as `--preset` does for the CLI (its
+data.stride: the player plays every n-th frame pair).
 """
 
 from launch import LaunchDescription

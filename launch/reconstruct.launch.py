@@ -2,13 +2,16 @@
 
     ros2 launch scene_recon reconstruct.launch.py \\
         color_topic:=/camera/color/image_raw depth_topic:=/camera/aligned_depth_to_color/image_raw \\
-        camera_info_topic:=/camera/color/camera_info map_frame:=map backend:=onnx model:=/path/model.onnx
+        camera_info_topic:=/camera/color/camera_info map_frame:=map backend:=onnx model:=/path/model.onnx \\
+        preset:=fast
     rviz2 -d $(ros2 pkg prefix scene_recon)/share/scene_recon/config/scene.rviz
 
 The camera pose comes from TF (map_frame -> the images' frame id), so a SLAM/odometry node must
 publish it. The node list and every parameter come from `recon_core.ros_graph.graph_nodes`, the
 description `scene-recon ros-run --live` starts as processes; this file only declares the
-arguments and turns each NodeSpec into a launch_ros Node.
+arguments and turns each NodeSpec into a launch_ros Node. `preset:=fast|balanced|accurate` applies
+config/presets/NAME.yaml to the nodes' parameters, as `--preset` does for the CLI (a live camera is
+not thinned: a preset's data.stride applies to recordings).
 """
 
 from launch import LaunchDescription

@@ -17,6 +17,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from recon_core.config import Preset, load_preset
+from recon_core.errors import ConfigError
+
 #: ROS package name of the executables (setup.py console scripts, `ros2 run scene_recon <executable>`).
 PACKAGE = "scene_recon"
 #: The oracle's ground-truth label topic (the player publishes it from generated bags).
@@ -61,6 +64,9 @@ class GraphOptions:
     method: str = "ours"
     #: Period (s) of the mapper's status topic (the runner's progress line reads it).
     status_period_s: float = 1.0
+    #: Speed/accuracy preset (fast | balanced | accurate: config/presets/NAME.yaml, or a YAML path); empty: none.
+    #: Applied to the nodes' parameters as `--preset` applies it to `scene-recon map/graph/replace`.
+    preset: str = ""
 
     def resolved_ground_truth(self) -> str:
         """The oracle's ground truth: the option, else a generated bag's `<bag>_groundtruth` folder beside it
@@ -128,9 +134,50 @@ def _yaml_scalar(value: Any) -> str:
     return repr(value)
 
 
+#: Where each section of a preset lands: (node, parameter prefix). The `data` section (how a recording is
+#: read) goes to the player, key by key (`PRESET_DATA_PARAMETERS`).
+PRESET_NODES = {"mapper": ("panoptic_mapper", ""), "scene_graph": ("contact_graph", ""),
+                "cad": ("cad_replacer", "replace.")}
+#: A preset's `data` keys the player honours (the player's parameter of the same name).
+PRESET_DATA_PARAMETERS = ("stride",)
+
+
+def preset_parameters(preset: Preset | None, bag: bool) -> dict[str, dict[str, Any]]:
+    """Node name -> parameters a preset sets: its mapper / scene_graph / cad overrides under the nodes'
+    own names (the dotted keys of the same config dataclasses, so the same values `--preset` gives the
+    CLI stages) and, when a recording is played (`bag`), its `data.stride` as the player's `stride`.
+    A live camera is not thinned (no node reads a live stream with a stride). A `data` key no node
+    honours is refused rather than silently dropped."""
+    if preset is None:
+        return {}
+    out: dict[str, dict[str, Any]] = {}
+    for section, (node, prefix) in PRESET_NODES.items():
+        values = {prefix + key: value for key, value in preset.section(section).items()}
+        if values:
+            out[node] = values
+    data = preset.section("data")
+    unknown = sorted(set(data) - set(PRESET_DATA_PARAMETERS))
+    if unknown:
+        raise ConfigError(f"preset {preset.name!r}: data key(s) {unknown} have no node parameter (the ROS graph "
+                          f"honours {list(PRESET_DATA_PARAMETERS)} of the data section)")
+    if bag and data:
+        out["rgbd_player"] = {key: data[key] for key in PRESET_DATA_PARAMETERS if key in data}
+    return out
+
+
 def graph_nodes(opts: GraphOptions) -> list[NodeSpec]:
     """The nodes of the whole pipeline (segmentation, mapper, contact graph, CAD replacer and, with a
-    bag, the player), in start order: consumers before producers, so no frame waits for discovery."""
+    bag, the player), in start order: consumers before producers, so no frame waits for discovery.
+    A preset's parameters come first; the explicit options of `opts` win over them."""
+    preset = preset_parameters(load_preset(opts.preset or None), bool(opts.bag))
+    nodes = _graph_nodes(opts)
+    for spec in nodes:
+        if spec.name in preset:
+            spec.parameters = {**preset[spec.name], **spec.parameters}
+    return nodes
+
+
+def _graph_nodes(opts: GraphOptions) -> list[NodeSpec]:
     sim = opts.sim_time()
     backend = opts.resolved_backend()
     out = Path(opts.out).expanduser()
@@ -202,6 +249,8 @@ _COMMON_ARGUMENTS: list[tuple[str, str | None, str]] = [
     ("out", GraphOptions.out, "output folder: <out>/map (checkpoints, saved maps), <out>/scene (URDF, meshes)"),
     ("seeds_per_class", str(GraphOptions.seeds_per_class), "procedural CAD models per class"),
     ("method", GraphOptions.method, "CAD replacement: ours | paper"),
+    ("preset", "", "speed/accuracy preset: fast | balanced | accurate (config/presets/NAME.yaml) or a YAML file; "
+     "empty: the config files as they are"),
 ]
 LIVE_ARGUMENTS = [*_COMMON_ARGUMENTS, ("use_sim_time", "false", "nodes on /clock time (true/false)")]
 BAG_ARGUMENTS: list[tuple[str, str | None, str]] = [
@@ -245,4 +294,4 @@ def _bool(text: str) -> bool:
 
 
 __all__ = ["BACKENDS", "BAG_ARGUMENTS", "LABELS_TOPIC", "LIVE_ARGUMENTS", "PACKAGE", "GraphOptions", "NodeSpec",
-           "graph_nodes", "options_from_strings"]
+           "graph_nodes", "options_from_strings", "preset_parameters"]

@@ -63,6 +63,8 @@ class RGBDPlayerConfig(Settings):
     depth_topic: str = setting("", doc="depth image topic (empty: <prefix>/depth/image_rect_raw)")
     camera_info_topic: str = setting("", doc="camera info topic (empty: <prefix>/color/camera_info)")
     start_offset_s: float = setting(0.0, min=0.0, doc="skip the recording's first seconds")
+    stride: int = setting(1, min=1, doc="play every n-th frame pair only (a preset's data.stride, as "
+                          "`scene-recon map --preset` reads the recording)")
     publish_clock: bool = setting(False, doc="publish the recording's time on /clock (for use_sim_time nodes)")
     clock_period_s: float = setting(0.01, min=0.001, doc="period (s) of /clock between frames")
     labels_topic_in: str = setting("", doc="label image topic in the recording (empty: auto-detect)")
@@ -101,6 +103,7 @@ class RGBDPlayer(Node):
         self.drain_timeout_s = settings.drain_timeout_s
         self._matched_at: float | None = None
         self.start_offset_ns = int(settings.start_offset_s * 1e9)
+        self.stride = settings.stride
         self.clock_period_s = settings.clock_period_s
         prefix = settings.topic_prefix.rstrip("/")
         self.pub_color = self.create_publisher(Image, settings.color_topic or f"{prefix}/color/image_raw",
@@ -138,6 +141,7 @@ class RGBDPlayer(Node):
     def _open(self) -> None:
         cfg = DataInputConfig(require_pose=False)
         cfg.topics.labels = self.labels_topic_in
+        cfg.stride = self.stride
         try:
             self._loader = open_dataset(self.path, cfg)
         except DatasetError as exc:

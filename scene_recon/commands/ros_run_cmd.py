@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 from recon_core.ros_graph import BACKENDS, GraphOptions, graph_nodes
+from scene_recon.commands.common import add_preset_option
 
 #: Exit status when the graph ran but produced no scene to export.
 EXIT_NO_SCENE = 3
@@ -78,6 +79,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="restart a node that dies up to N times (the mapper resumes from its newest checkpoint; "
                    "the others rejoin from the latched topics); 0: a dying node stops the run")
     p.add_argument("--quiet-nodes", action="store_true", help="do not forward the nodes' logs (still in OUT/ros/logs)")
+    add_preset_option(p)  # the launch files' `preset:=NAME`: the same parameters (recon_core.ros_graph)
     p.set_defaults(func=run)
 
 
@@ -92,6 +94,7 @@ def graph_options(args: argparse.Namespace) -> GraphOptions:
         ground_truth=args.ground_truth, noise_level=args.noise, config_dir=args.config_dir,
         use_sim_time=None if args.sim_time == "auto" else args.sim_time == "true",
         out=str(Path(args.out).resolve()), seeds_per_class=args.seeds_per_class, method=args.method,
+        preset=args.preset or "",
     )
 
 
@@ -114,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
     sink = LogSink(quiet=args.quiet_nodes)
     sink.width = max(len(s.name) for s in specs)
     say = _say
-    say(f"{'bag ' + opts.bag if opts.bag else 'live'}: segmentation {opts.resolved_backend()}, sim time "
+    say(f"{'bag ' + opts.bag if opts.bag else 'live'}: segmentation {opts.resolved_backend()}, preset "
+        f"{opts.preset or 'none'}, sim time "
         f"{opts.sim_time()}, output {out}; nodes: {', '.join(s.name for s in specs)}")
     t_start = time.monotonic()
     monitor = GraphMonitor(opts.map_frame)

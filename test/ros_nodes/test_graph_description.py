@@ -127,3 +127,59 @@ def test_the_launch_files_use_the_shared_description():
         assert f"from recon_core.ros_graph import {arguments}, PACKAGE, graph_nodes, options_from_strings" in text
         assert "graph_nodes(opts)" in text and "parameters=[spec.parameters]" in text
         compile(text, name, "exec")
+
+
+@pytest.mark.parametrize("name", ["fast", "balanced", "accurate"])
+def test_a_preset_sets_the_nodes_parameters_as_the_cli_preset(name, tmp_path):
+    """`ros-run --preset NAME` and the launch files' `preset:=NAME` give the same nodes, whose parameters
+    hold the preset's overrides under the nodes' names: the configs the nodes build equal the CLI's."""
+    from cad_replacement.replace_config import CadReplacementConfig
+    from panoptic_mapping.config import MapperConfig
+    from recon_core.config import CONFIG_DIR, build_config, load_config, load_preset, preset_overrides
+    from scene_graph.config import load_scene_graph_config
+
+    bag = tmp_path / "rec"
+    bag.mkdir()
+    out = str(tmp_path / "out")
+    runner = graph_nodes(_runner_options(["ros-run", "--bag", str(bag), "--out", out, "--preset", name]))
+    launch = graph_nodes(_launch_options(BAG_ARGUMENTS, bag=str(bag), out=out, preset=name))
+    assert [vars(s) for s in runner] == [vars(s) for s in launch]
+    nodes = {s.name: s.parameters for s in runner}
+    for node, params in nodes.items():
+        assert not set(params) - _declared(node), node
+    preset = load_preset(name)
+
+    def own(node: str, cls, prefix: str = "") -> dict:
+        keys = {s.key for s in iter_settings(cls())}
+        return {k[len(prefix):]: v for k, v in nodes[node].items() if k.startswith(prefix) and k[len(prefix):] in keys}
+
+    mapper_cli = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml", preset_overrides(preset, "mapper"))
+    assert load_config(MapperConfig, CONFIG_DIR / "mapper.yaml", own("panoptic_mapper", MapperConfig)) == mapper_cli
+    graph_cli = load_scene_graph_config(None, preset_overrides(preset, "scene_graph"))
+    assert load_scene_graph_config(None, own("contact_graph", type(graph_cli))) == graph_cli
+    cad_cli = build_config(CadReplacementConfig, {}, preset_overrides(preset, "cad", {"method": "ours"}))
+    assert build_config(CadReplacementConfig, {}, own("cad_replacer", CadReplacementConfig, "replace.")) == cad_cli
+    assert nodes["rgbd_player"].get("stride", 1) == preset.section("data").get("stride", 1)
+    assert nodes["cad_replacer"]["replace.method"] == "ours"  # the explicit options win over a preset
+
+
+def test_preset_values_and_errors(tmp_path):
+    from recon_core.errors import ConfigError
+    from recon_core.ros_graph import preset_parameters
+
+    fast = {s.name: s.parameters for s in graph_nodes(GraphOptions(bag=str(tmp_path), preset="fast"))}
+    assert fast["panoptic_mapper"]["keyframes.label_every_n_frames"] == 0 and fast["panoptic_mapper"]["downsample"] == 2
+    assert fast["contact_graph"]["planes.ransac_iterations"] == 100 and fast["cad_replacer"]["replace.top_k"] == 6
+    assert fast["rgbd_player"]["stride"] == 2
+    live = {s.name: s.parameters for s in graph_nodes(GraphOptions(preset="fast"))}
+    assert "rgbd_player" not in live and live["panoptic_mapper"]["downsample"] == 2  # a live camera is not thinned
+    plain = {s.name: s.parameters for s in graph_nodes(GraphOptions(bag=str(tmp_path)))}
+    assert "stride" not in plain["rgbd_player"] and "downsample" not in plain["panoptic_mapper"]
+    with pytest.raises(ConfigError, match="unknown preset"):
+        graph_nodes(GraphOptions(preset="fastest"))
+    odd = tmp_path / "odd.yaml"
+    odd.write_text("data:\n  max_frames: 10\n")
+    from recon_core.config import load_preset
+
+    with pytest.raises(ConfigError, match="no node parameter"):
+        preset_parameters(load_preset(odd), bag=True)
