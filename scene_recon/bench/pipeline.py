@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from recon_core.config import CONFIG_DIR, Preset, build_config, load_config, preset_overrides
+from recon_core.config import CONFIG_DIR, Preset, build_config, load_config, preset_overrides, to_dict
 
 
 @dataclass
@@ -77,12 +77,15 @@ class StageCache:
         while len(store) > self.capacity:
             store.popitem(last=False)
 
-    def map_key(self, bag: Path, spec: RunSpec) -> str:
-        return json.dumps([str(bag), spec.overrides("mapper"), spec.overrides("data"), spec.mode, spec.noise],
-                          sort_keys=True, default=str)
+    @staticmethod
+    def map_key(bag: Path, mapper_cfg: Any, data_cfg: Any, noise: str) -> str:
+        """The settings a map depends on: the recording, the resolved mapper and data configs (a sweep
+        point equal to a preset's value is the same map), the oracle's noise level."""
+        return json.dumps([str(bag), to_dict(mapper_cfg), to_dict(data_cfg), noise], sort_keys=True, default=str)
 
-    def graph_key(self, bag: Path, spec: RunSpec) -> str:
-        return json.dumps([self.map_key(bag, spec), spec.overrides("scene_graph")], sort_keys=True, default=str)
+    @staticmethod
+    def graph_key(map_key: str, graph_cfg: Any) -> str:
+        return json.dumps([map_key, to_dict(graph_cfg)], sort_keys=True, default=str)
 
 
 def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = None,
@@ -122,8 +125,8 @@ def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = N
     library = library or CadLibrary(seeds_per_class=spec.seeds_per_class)
     scene = GroundTruthScene.load(gt)
 
-    map_key = cache.map_key(bag, spec) if cache is not None else ""
-    graph_key = cache.graph_key(bag, spec) if cache is not None else ""
+    map_key = StageCache.map_key(bag, mapper_cfg, data_cfg, spec.noise)
+    graph_key = StageCache.graph_key(map_key, graph_cfg)
     shared: list[str] = []
     # stage 1-2: segmentation + mapping (frames read, segmented, integrated; entities extracted)
     c0, t0 = time.process_time(), time.perf_counter()
