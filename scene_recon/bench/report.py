@@ -27,6 +27,7 @@ _COLUMNS: list[tuple[str, Any]] = [
     ("still %", lambda r: "-" if r.get("stillness") is None else f"{100 * r['stillness']:.0f}"),
     ("score", lambda r: f"{accuracy_score(r):.3f}"),
     ("CAD re-matched, unchanged scene", lambda r: str(r.get("unchanged_rematched", "-"))),
+    ("shared", lambda r: r.get("shared") or "-"),
 ]
 
 
@@ -104,13 +105,25 @@ def write_report(out: Path, suite: str, results: dict[str, Any]) -> dict[str, Pa
     out.mkdir(parents=True, exist_ok=True)
     results = {"suite": suite, "written": time.strftime("%Y-%m-%dT%H:%M:%S"), **results}
     (out / "results.json").write_text(json.dumps(results, indent=1, default=str), encoding="utf-8")
+    cpu = results.get("suite_cpu_s")
+    load = (f" (load average before {results['load_avg_before']}, at the end "
+            f"{results.get('machine', {}).get('load_avg')})" if results.get("load_avg_before") else "")
     md: list[str] = [f"# scene_recon benchmark: suite `{suite}`", "",
                      f"Written {results['written']} on {results.get('machine', {})}; wall time of the suite "
-                     f"{results.get('suite_wall_s', 0):.0f} s. Times are wall seconds on this machine (ratios "
-                     "are against runs of the same suite invocation); accuracy against the generated ground truth.",
-                     ""]
+                     f"{results.get('suite_wall_s', 0):.0f} s"
+                     + (f", CPU time {cpu:.0f} s (this process and its children)" if cpu is not None else "")
+                     + f"{load}. Times are wall seconds on this machine unless marked CPU (ratios "
+                     "are against runs of the same suite invocation); accuracy against the generated ground truth. "
+                     "A row marked shared reused the map (and graph) of an earlier run with the same settings and "
+                     "carries that run's stage times.", ""]
     body_html: list[str] = [f"<h1>scene_recon benchmark: suite <code>{html.escape(suite)}</code></h1>",
                             f"<p>{html.escape(md[2])}</p>"]
+    costs = results.get("section_costs") or []
+    if costs:
+        md += ["| section(s) | wall s | CPU s |", "|---|---|---|"]
+        md += [f"| {c['title']}{' (+' + str(c['sections'] - 1) + ' more)' if c.get('sections', 1) > 1 else ''} | "
+               f"{c['wall']:.0f} | {c['cpu']:.0f} |" for c in costs]
+        md.append("")
     for section in results.get("sections", []):
         md += [f"## {section['title']}", "", section.get("text", ""), ""]
         body_html += [f"<h2>{html.escape(section['title'])}</h2>", f"<p>{html.escape(section.get('text', ''))}</p>"]
