@@ -160,7 +160,8 @@ def static_camera(runner: Any, n: int = 60) -> dict[str, Any]:
 def _smooth(x: np.ndarray, n: int = 50) -> list[float]:
     if len(x) < n:
         return [round(float(v), 2) for v in x]
-    c = np.convolve(x, np.ones(n) / n, mode="same")
+    padded = np.pad(np.asarray(x, float), (n // 2, n - 1 - n // 2), mode="edge")  # no zero-padded ends
+    c = np.convolve(padded, np.ones(n) / n, mode="valid")
     return [round(float(v), 2) for v in c]
 
 
