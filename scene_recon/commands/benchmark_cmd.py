@@ -15,8 +15,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "and report.html into --out. quick (< 3 min on 2 cores; CI runs it): each preset of config/presets/ end "
         "to end on bench-small, plus the paper's CAD method and the baseline mapper, time against accuracy (PQ, "
         "box mAP, GED, CAD pose success, stillness) with the Pareto front. full (< 30 min): the presets on every "
-        "suite scene, one-knob sweeps per stage with Pareto plots, the skip measurements (empty room, static "
-        "camera, unchanged scene) and scaling (per-frame cost over a long sequence, time against object count).",
+        "suite scene, one-knob sweeps per stage with Pareto plots, perturbation curves (segmentation noise, depth "
+        "noise, pose drift, CAD scale), the skip measurements (empty room, static camera, unchanged scene) and "
+        "scaling (per-frame cost over a long sequence, time against object count, segmentation latency on "
+        "onnxruntime, a computed multi-room / multi-host DDS projection).",
     )
     p.add_argument("--suite", choices=("quick", "full"), default="quick")
     p.add_argument("--out", required=True, help="report folder (created; files in it are replaced)")
