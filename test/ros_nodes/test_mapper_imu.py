@@ -33,9 +33,9 @@ def test_mapper_node_checks_the_map_frames_up_with_an_imu(tmp_path):
     domain = str(domain_id("spare2"))
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=domain)
     os.environ["ROS_DOMAIN_ID"] = domain
-    proc = subprocess.Popen([sys.executable, "-m", "ros_nodes.mapper_node", "--ros-args", "-p", f"data_root:={tmp_path}",
-                             "-p", "imu_topic:=/imu", "-p", "imu_samples:=60", "-p", "gravity_check:=false",
-                             "-p", "use_segmentation:=false"],
+    proc = subprocess.Popen([sys.executable, "-m", "ros_nodes.mapper_node", "--ros-args",
+                             "-p", f"data_root:={tmp_path}", "-p", "imu_topic:=/imu", "-p", "imu_samples:=60",
+                             "-p", "gravity_check:=false", "-p", "use_segmentation:=false"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     rclpy.init()
     node = rclpy.create_node("imu_driver")
