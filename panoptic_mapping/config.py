@@ -112,6 +112,19 @@ class TSDFConfig(Settings):
 
 
 @dataclass
+class StaticConfig(Settings):
+    """A camera standing still: a frame that moved less than this since the last integrated frame sees
+    the same surfaces from the same place and adds nothing to the map, so it is skipped whole
+    (segmentation included), except one every `max_interval_s`: a still camera keeps seeing a scene
+    that changes (someone moves the cup)."""
+
+    enabled: bool = True
+    max_translation_m: float = setting(0.005, min=0.0)
+    max_rotation_deg: float = setting(0.5, min=0.0)
+    max_interval_s: float = setting(1.0, min=0.0)
+
+
+@dataclass
 class KeyframeConfig(Settings):
     """Segment only keyframes; other frames integrate geometry and reuse the map's labels."""
 
@@ -170,5 +183,6 @@ class MapperConfig(Settings):
     regularization: RegularizationConfig = field(default_factory=RegularizationConfig)
     tsdf: TSDFConfig = field(default_factory=TSDFConfig)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    static: StaticConfig = field(default_factory=StaticConfig)
     extraction: ExtractionConfig = field(default_factory=ExtractionConfig)
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)

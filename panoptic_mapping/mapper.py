@@ -64,6 +64,13 @@ class FrameStats:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
+def _pose_change(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """Translation (m) and rotation angle (deg) from camera pose ``a`` to ``b`` (4x4, float64)."""
+    delta = np.linalg.inv(np.asarray(a, np.float64)) @ np.asarray(b, np.float64)
+    angle = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1.0, 1.0)))
+    return float(np.linalg.norm(delta[:3, 3])), float(angle)
+
+
 class PanopticMapper:
     """Incremental panoptic TSDF map. Call `integrate(frame, masks)` per frame, `entities()` at will."""
 
@@ -78,6 +85,8 @@ class PanopticMapper:
         self._entity_cache: tuple | None = None
         self._last_key_pose: np.ndarray | None = None
         self._last_key_time: int | None = None
+        #: (input pose, stamp) of the last integrated frame: a still camera's frames are skipped (`is_static`)
+        self._last_integrated: tuple[np.ndarray, int] | None = None
         #: Position of this map's origin in the input's map frame (m, float64): poses are integrated
         #: relative to it, and every output (voxels, meshes, entities) is in these local coordinates.
         #: Non-zero for recordings far from their frame's origin (UTM-like coordinates), see `recentre`.
@@ -127,11 +136,21 @@ class PanopticMapper:
         kc = self.config.keyframes
         if not kc.enabled or self._last_key_pose is None or frame.pose is None:
             return True
-        delta = np.linalg.inv(self._last_key_pose) @ frame.pose
-        moved = np.linalg.norm(delta[:3, 3]) >= kc.min_translation_m
-        angle = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1.0, 1.0)))
+        moved, angle = _pose_change(self._last_key_pose, frame.pose)
         late = (frame.timestamp_ns - (self._last_key_time or 0)) * 1e-9 >= kc.max_interval_s
-        return bool(moved or angle >= kc.min_rotation_deg or late)
+        return bool(moved >= kc.min_translation_m or angle >= kc.min_rotation_deg or late)
+
+    def is_static(self, frame: RGBDFrame) -> bool:
+        """The camera stood still since the last integrated frame (``static.*``): the frame adds nothing
+        and callers skip it whole, segmentation included; never for longer than ``static.max_interval_s``."""
+        sc = self.config.static
+        if not sc.enabled or self._last_integrated is None or frame.pose is None:
+            return False
+        pose, stamp = self._last_integrated
+        if abs(frame.timestamp_ns - stamp) * 1e-9 >= sc.max_interval_s:
+            return False
+        moved, angle = _pose_change(pose, frame.pose)
+        return bool(moved < sc.max_translation_m and angle < sc.max_rotation_deg)
 
     def mark_keyframe(self, frame: RGBDFrame) -> None:
         self._last_key_pose = frame.pose
@@ -171,6 +190,7 @@ class PanopticMapper:
         intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
         self.tsdf.integrate_depth(downsample_depth(frame.depth, ds), intr.matrix, pose)
         self.frames_integrated += 1
+        self._last_integrated = (np.asarray(frame.pose, np.float64), frame.timestamp_ns)
         return FrameStats(False, 0, 0, 0, 0, {"integration": (time.perf_counter() - t0) * 1000})
 
     def integrate(self, frame: RGBDFrame, masks: PanopticMasks | None) -> FrameStats:
@@ -224,6 +244,7 @@ class PanopticMapper:
         self.tsdf.integrate_depth(depth, intr.matrix, pose, in_range=True)
         t["integration"] = time.perf_counter()
         self.frames_integrated += 1
+        self._last_integrated = (np.asarray(frame.pose, np.float64), frame.timestamp_ns)
         every = cfg.regularization.every_n_frames
         if every and self.frames_integrated % every == 0:
             self.regularize()

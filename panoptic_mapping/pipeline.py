@@ -87,6 +87,8 @@ class MappingRun:
     #: Frames the mapper raised on (logged, skipped; the run goes on) and their first errors.
     failed_frames: int = 0
     failures: dict[str, int] = field(default_factory=dict)
+    #: Frames of a camera standing still (`static.*` of the mapper config): skipped whole, they add nothing.
+    static_frames: int = 0
     #: Map-frame position of the map's origin (non-zero when the recording was recentred).
     origin_offset_m: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     #: The recording ended early (truncated bag); frames before the cut were mapped.
@@ -371,6 +373,10 @@ def map_recording(
                 continue
             if not run.frames and not run.failed_frames:
                 _choose_origin(mapper, frame.pose, recentre_beyond_m)
+            if mapper.is_static(frame):
+                run.static_frames += 1
+                bar.update(1)
+                continue
             masks = None
             if geometry_only:
                 if mapper.is_keyframe(frame):  # counted only (reported as keyframes)

@@ -387,6 +387,9 @@ class MapperNode(Node):
             self.get_logger().warning(f"frame at {stamp * 1e-9:.3f} s: no TF around its stamp (TF from "
                                       f"{span[0] * 1e-9:.3f} to {span[1] * 1e-9:.3f} s after waiting up to "
                                       f"{self.tf_wait_s:g} s); its pose is extrapolated", throttle_duration_sec=5.0)
+        if self.mapper.is_static(frame):  # a still camera: the frame adds nothing (static.* of the config)
+            self.counters["static_frames"] += 1
+            return
         self._check_gravity(frame)
         if self.mapper.is_keyframe(frame):
             if not self.use_segmentation:

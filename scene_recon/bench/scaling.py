@@ -110,11 +110,13 @@ def _frame_times(bag: Path, gt: Path, frames: list[Any] | None = None, max_frame
     for frame in frames:
         t0, c0 = time.perf_counter(), time.process_time()
         masks = None
-        if mapper.is_keyframe(frame):
+        static = mapper.is_static(frame)  # as map_recording does: a still camera's frame is skipped whole
+        if not static and mapper.is_keyframe(frame):
             mapper.mark_keyframe(frame)
             masks = masks_from_segmentation(segmenter.segment_frame(frame))
             calls += 1
-        mapper.integrate(frame, masks)
+        if not static:
+            mapper.integrate(frame, masks)
         ms.append((time.perf_counter() - t0) * 1000.0)
         cpu_ms.append((time.process_time() - c0) * 1000.0)
         mems.append(mapper.tsdf.memory_bytes() / 1e6)

@@ -299,3 +299,30 @@ def test_fringe_fill_is_marked_after_the_voted_core(tiny_scene):
         v, f = e.core_mesh(min_faces=1)
         assert len(v) == core and (len(f) == 0 or f.max() < core)
     assert fringed > 0  # the fill did join unvoted vertices, and they were told apart
+
+
+def test_a_still_camera_adds_one_frame_per_interval_and_a_move_is_never_skipped(tiny_scene):
+    """Frames of a camera standing still add nothing (the same surfaces from the same place): they are
+    skipped whole, except one every static.max_interval_s (a still camera keeps seeing a changing
+    scene); a frame that moved more than static.max_translation_m always counts."""
+    import dataclasses
+
+    _, renderer = tiny_scene
+    mapper = _mapper()
+    still, _ = _frame(renderer, EYES[0])
+    integrated = []
+    for i in range(45):  # 1.5 s at 30 Hz, with 1 mm / 0.05 deg of tracker jitter
+        jitter = np.eye(4)
+        jitter[:3, 3] = 0.001 * np.sin(i)
+        c, s = np.cos(np.radians(0.05 * np.sin(i))), np.sin(np.radians(0.05 * np.sin(i)))
+        jitter[:2, :2] = [[c, -s], [s, c]]
+        frame = dataclasses.replace(still, pose=still.pose @ jitter, timestamp_ns=i * 33_333_333, index=i)
+        if not mapper.is_static(frame):
+            mapper.integrate_geometry(frame)
+            integrated.append(i)
+    assert integrated == [0, 31]  # the first frame, then the first one a second later (31 x 33.3 ms)
+    pose = still.pose.copy()
+    pose[:3, 3] += [0.01, 0.0, 0.0]  # 1 cm: a move
+    assert not mapper.is_static(dataclasses.replace(still, pose=pose, timestamp_ns=32 * 33_333_333))
+    mapper.config.static.enabled = False
+    assert not mapper.is_static(dataclasses.replace(still, timestamp_ns=32 * 33_333_333))
