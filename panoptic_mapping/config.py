@@ -122,6 +122,10 @@ class StaticConfig(Settings):
     max_translation_m: float = setting(0.005, min=0.0)
     max_rotation_deg: float = setting(0.5, min=0.0)
     max_interval_s: float = setting(1.0, min=0.0)
+    #: Frames from one still viewpoint integrated before the skipping starts: a surface is meshed once
+    #: its voxels have `tsdf.mesh_weight_threshold` (2) observations, so a still camera's first views
+    #: still count (a short recording from a tripod is not left empty).
+    min_views: int = setting(3, min=1)
 
 
 @dataclass

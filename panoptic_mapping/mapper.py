@@ -85,8 +85,10 @@ class PanopticMapper:
         self._entity_cache: tuple | None = None
         self._last_key_pose: np.ndarray | None = None
         self._last_key_time: int | None = None
-        #: (input pose, stamp) of the last integrated frame: a still camera's frames are skipped (`is_static`)
+        #: (input pose, stamp) of the last integrated frame and how many frames were integrated from
+        #: that viewpoint in a row: a still camera's frames are skipped (`is_static`)
         self._last_integrated: tuple[np.ndarray, int] | None = None
+        self._still_views = 0
         #: Position of this map's origin in the input's map frame (m, float64): poses are integrated
         #: relative to it, and every output (voxels, meshes, entities) is in these local coordinates.
         #: Non-zero for recordings far from their frame's origin (UTM-like coordinates), see `recentre`.
@@ -144,13 +146,25 @@ class PanopticMapper:
         """The camera stood still since the last integrated frame (``static.*``): the frame adds nothing
         and callers skip it whole, segmentation included; never for longer than ``static.max_interval_s``."""
         sc = self.config.static
-        if not sc.enabled or self._last_integrated is None or frame.pose is None:
+        if not sc.enabled or self._last_integrated is None or frame.pose is None or self._still_views < sc.min_views:
             return False
-        pose, stamp = self._last_integrated
-        if abs(frame.timestamp_ns - stamp) * 1e-9 >= sc.max_interval_s:
+        stamp = self._last_integrated[1]
+        return abs(frame.timestamp_ns - stamp) * 1e-9 < sc.max_interval_s and self._still_since_last(frame.pose)
+
+    def _still_since_last(self, pose: np.ndarray) -> bool:
+        """``pose`` is within ``static.max_translation_m`` / ``max_rotation_deg`` of the last integrated frame's."""
+        if self._last_integrated is None:
             return False
-        moved, angle = _pose_change(pose, frame.pose)
-        return bool(moved < sc.max_translation_m and angle < sc.max_rotation_deg)
+        moved, angle = _pose_change(self._last_integrated[0], pose)
+        sc = self.config.static
+        return moved < sc.max_translation_m and angle < sc.max_rotation_deg
+
+    def _integrated(self, frame: RGBDFrame) -> None:
+        """Bookkeeping after a frame was integrated: the count, and the viewpoint for `is_static`."""
+        self.frames_integrated += 1
+        pose = np.asarray(frame.pose, np.float64)
+        self._still_views = self._still_views + 1 if self._still_since_last(pose) else 1
+        self._last_integrated = (pose, frame.timestamp_ns)
 
     def mark_keyframe(self, frame: RGBDFrame) -> None:
         self._last_key_pose = frame.pose
@@ -189,8 +203,7 @@ class PanopticMapper:
         ds = self.config.downsample
         intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
         self.tsdf.integrate_depth(downsample_depth(frame.depth, ds), intr.matrix, pose)
-        self.frames_integrated += 1
-        self._last_integrated = (np.asarray(frame.pose, np.float64), frame.timestamp_ns)
+        self._integrated(frame)
         return FrameStats(False, 0, 0, 0, 0, {"integration": (time.perf_counter() - t0) * 1000})
 
     def integrate(self, frame: RGBDFrame, masks: PanopticMasks | None) -> FrameStats:
@@ -243,8 +256,7 @@ class PanopticMapper:
             self.counts.last_update[int(label)] = self.frames_integrated
         self.tsdf.integrate_depth(depth, intr.matrix, pose, in_range=True)
         t["integration"] = time.perf_counter()
-        self.frames_integrated += 1
-        self._last_integrated = (np.asarray(frame.pose, np.float64), frame.timestamp_ns)
+        self._integrated(frame)
         every = cfg.regularization.every_n_frames
         if every and self.frames_integrated % every == 0:
             self.regularize()

@@ -302,9 +302,10 @@ def test_fringe_fill_is_marked_after_the_voted_core(tiny_scene):
 
 
 def test_a_still_camera_adds_one_frame_per_interval_and_a_move_is_never_skipped(tiny_scene):
-    """Frames of a camera standing still add nothing (the same surfaces from the same place): they are
-    skipped whole, except one every static.max_interval_s (a still camera keeps seeing a changing
-    scene); a frame that moved more than static.max_translation_m always counts."""
+    """Frames of a camera standing still add nothing (the same surfaces from the same place) once its
+    first views are in (a surface is meshed from 2 observations): they are skipped whole, except one
+    every static.max_interval_s (a still camera keeps seeing a changing scene); a frame that moved
+    more than static.max_translation_m always counts."""
     import dataclasses
 
     _, renderer = tiny_scene
@@ -320,7 +321,8 @@ def test_a_still_camera_adds_one_frame_per_interval_and_a_move_is_never_skipped(
         if not mapper.is_static(frame):
             mapper.integrate_geometry(frame)
             integrated.append(i)
-    assert integrated == [0, 31]  # the first frame, then the first one a second later (31 x 33.3 ms)
+    # the first static.min_views (3) views, then the first frame a second after the last one integrated
+    assert integrated == [0, 1, 2, 33]
     pose = still.pose.copy()
     pose[:3, 3] += [0.01, 0.0, 0.0]  # 1 cm: a move
     assert not mapper.is_static(dataclasses.replace(still, pose=pose, timestamp_ns=32 * 33_333_333))
