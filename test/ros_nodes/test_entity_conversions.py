@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 import trimesh
 
 from recon_core.entity import Entity
-
-pytest.importorskip("scene_recon_interfaces.msg")
 
 
 def test_fringe_vertices_round_trip_inline_and_unmarked_entities_stay_unmarked():

@@ -33,6 +33,18 @@ def _write_bag(path: Path):
     return colors, depths, labels, poses, intr
 
 
+def _wait_for_exit(node, player) -> str:
+    """The player's output once it exited, then what arrived meanwhile (a loaded machine delivered the
+    last /clock sample after the caller had stopped spinning)."""
+    import rclpy
+
+    out, _ = player.communicate(timeout=30)
+    drain = time.monotonic() + 1.0
+    while time.monotonic() < drain:
+        rclpy.spin_once(node, timeout_sec=0.01)
+    return out
+
+
 @pytest.mark.parametrize("stride", [1, 2])
 def test_player_publishes_bag_frames(tmp_path, stride):
     """Every frame of the bag in order with its pose, intrinsics and labels; with `stride` (a preset's
@@ -72,12 +84,7 @@ def test_player_publishes_bag_frames(tmp_path, stride):
         played = list(range(0, N, stride))
         while time.monotonic() < deadline and min(len(v) for v in got.values()) < len(played):
             rclpy.spin_once(node, timeout_sec=0.05)
-        out, _ = player.communicate(timeout=30)
-        # what arrived while we waited for the player to exit is taken now (a loaded machine delivered
-        # the last /clock sample after the loop above had stopped spinning)
-        drain = time.monotonic() + 1.0
-        while time.monotonic() < drain:
-            rclpy.spin_once(node, timeout_sec=0.01)
+        out = _wait_for_exit(node, player)
     finally:
         if player.poll() is None:
             player.kill()
@@ -153,12 +160,7 @@ def test_player_clock_start_offset_rate_and_pause(tmp_path):
         resumed_at = time.monotonic()
         while time.monotonic() < deadline and len(frames) < N - 4:
             rclpy.spin_once(node, timeout_sec=0.01)
-        out, _ = player.communicate(timeout=30)
-        # what arrived while we waited for the player to exit is taken now (a loaded machine delivered
-        # the last /clock sample after the loop above had stopped spinning)
-        drain = time.monotonic() + 1.0
-        while time.monotonic() < drain:
-            rclpy.spin_once(node, timeout_sec=0.01)
+        out = _wait_for_exit(node, player)
     finally:
         if player.poll() is None:
             player.kill()
