@@ -139,7 +139,8 @@ def link_physics(link: Link, density: float | None, *, needs_mass: bool, where: 
 
 def scene_to_tree(scene: ReplacedScene, *, class_table: ClassTable | None = None,
                   cache_dir: str | Path | None = None, visual_collisions: bool = False) -> KinematicTree:
-    """The scene as one kinematic tree rooted at ``map`` (names prefixed by the object name).
+    """The scene as one kinematic tree rooted at the scene's frame (``map`` unless the map was built in
+    another, e.g. the mapper node's gravity-aligned ``map_gravity``), names prefixed by the object name.
 
     An object's root link is named after the object, its other links ``<object>__<link>``, its
     joints ``<object>__<joint>``; the support joint ``<parent link>__to__<object>`` is fixed or
@@ -152,10 +153,11 @@ def scene_to_tree(scene: ReplacedScene, *, class_table: ClassTable | None = None
     """
     scene.validate()
     table = class_table if class_table is not None else load_class_table()
-    raw_links: list[TreeLink] = [TreeLink(MAP_ROOT, None, 0.0, None)]
+    root = scene.frame_id or MAP_ROOT  # the TF frame the poses are in: the URDF's root link and TF parent
+    raw_links: list[TreeLink] = [TreeLink(root, None, 0.0, None)]
     raw_joints: list[Joint] = []
     values: dict[str, float] = {}
-    link_pose: dict[str, NDArray[np.float64]] = {MAP_ROOT: np.eye(4)}
+    link_pose: dict[str, NDArray[np.float64]] = {root: np.eye(4)}
     for obj in scene:
         model = obj.model
         density = _density(obj.class_name, table)
@@ -178,7 +180,7 @@ def scene_to_tree(scene: ReplacedScene, *, class_table: ClassTable | None = None
             if j.movable:
                 values[jname] = j.clip(obj.joint_values.get(j.name, zero.get(j.name, 0.0)))
         if obj.parent == MAP_ROOT:
-            parent_name = MAP_ROOT
+            parent_name = root
         else:
             parent = scene.object(obj.parent)
             parent_name = link_name(parent, obj.parent_link or parent.model.root_link)
@@ -194,7 +196,7 @@ def scene_to_tree(scene: ReplacedScene, *, class_table: ClassTable | None = None
     joints = [Joint(n, j.type, link_map[j.parent], link_map[j.child], j.origin, j.axis, j.lower, j.upper, j.effort,
                     j.velocity) for j, n in zip(raw_joints, joint_names, strict=True)]
     renamed_values = {n: values[j.name] for j, n in zip(raw_joints, joint_names, strict=True) if j.name in values}
-    tree = KinematicTree(urdf_name(scene.name, "scene"), link_map[MAP_ROOT], links, joints, renamed_values)
+    tree = KinematicTree(urdf_name(scene.name, "scene"), link_map[root], links, joints, renamed_values)
     tree.validate()
     return tree
 

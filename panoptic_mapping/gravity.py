@@ -389,6 +389,14 @@ class GravityMonitor:
         est.add_frame(depth, intrinsics, pose)
         if est.frames < self.cfg.window_frames:
             return None
+        return self.finish()
+
+    def finish(self) -> GravityEstimate | None:
+        """End the window now (a short stream, a stream that paused): the estimate from the frames read
+        so far becomes the verdict. ``None`` when it was already given or no posed frame was read."""
+        est = self.estimator
+        if est is None or est.frames == 0:
+            return None
         self.result = est.estimate()
         self.estimator = None
         self.warning = self._warning_for(self.result)

@@ -29,6 +29,15 @@ Checkpoints (`checkpoint.*` of the mapper config): every `checkpoint.every_n_fra
 (generations written atomically, `panoptic_mapping.checkpoint`); the state is copied under the lock
 and written by a background thread. `resume:=true` starts from the newest good checkpoint.
 
+Gravity: the depth of the first frames (`gravity_window_frames` x `gravity_stride`, gravity.* of
+config/data.yaml) tells where up is in the TF `map_frame`. With `gravity_align` (the default) the
+frames of that window wait for the verdict; when the map frame's +z is more than
+gravity.min_correction_deg from up (a visual SLAM's frame is often its first camera's), the map is
+built in a gravity-aligned frame `aligned_frame` instead, published on /tf_static as a child of
+`map_frame`, and every output (entities, markers, saved maps) is in it; otherwise nothing changes.
+A stream that pauses before the window is full decides on the frames read (after `tf_wait_s` x 4 of
+silence). `gravity_align:=false` only checks and warns (the frame is trusted).
+
 Parameters: `config_file` (the mapper YAML, empty: config/mapper.yaml), every key of that file under
 its dotted name (`mode`, `tsdf.voxel_size_m`, `keyframes.enabled`, ...; see `ros_nodes.parameters`),
 and the node's own settings, `MapperNodeConfig` (topics, frames, timeouts, publishing).
@@ -54,6 +63,7 @@ from scene_recon_interfaces.msg import PanopticEntityArray
 from scene_recon_interfaces.srv import ExtractEntities, LoadMap, ResetMap, SaveMap, SegmentImage
 from sensor_msgs.msg import CameraInfo, Image, Imu
 from std_msgs.msg import String
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from panoptic_mapping.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointStore
@@ -61,7 +71,14 @@ from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.dataio import DataInputConfig
 from panoptic_mapping.dataio.transforms import TransformLookupError
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
-from panoptic_mapping.gravity import AccelerometerCheck, GravityMonitor
+from panoptic_mapping.gravity import (
+    AccelerometerCheck,
+    GravityEstimate,
+    GravityMonitor,
+    alignment_from_estimate,
+    rotation_angle_deg,
+    up_of_alignment,
+)
 from panoptic_mapping.mapper import MapSnapshot, PanopticMapper
 from panoptic_mapping.pipeline import class_metas
 from recon_core.classes import load_class_table
@@ -70,10 +87,17 @@ from recon_core.errors import CheckpointError, SceneReconError
 from recon_core.frame import DatasetError, RGBDFrame
 from recon_core.paths import confined_path
 from ros_nodes import diagnostics as diag
-from ros_nodes.conversions import camera_info_to_intrinsics, image_to_depth, image_to_labels, image_to_rgb, stamp_to_ns
+from ros_nodes.conversions import (
+    camera_info_to_intrinsics,
+    image_to_depth,
+    image_to_labels,
+    image_to_rgb,
+    make_transform_stamped,
+    stamp_to_ns,
+)
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, map_markers
 from ros_nodes.parameters import declare_config, declare_config_file
-from ros_nodes.qos import ENTITIES, RECORDING_DEPTH, STATUS
+from ros_nodes.qos import ENTITIES, RECORDING_DEPTH, STATUS, TF_STATIC
 from ros_nodes.runner import run_node, steady_timer
 from ros_nodes.sensor_subscription import SensorSubscription
 from ros_nodes.tf_listener import TFListener
@@ -127,11 +151,16 @@ class MapperNodeConfig(Settings):
     status_period_s: float = setting(10.0, min=0.0, min_exclusive=True,
                                      doc="period (s) of the status log line and the mapper_status topic")
     gravity_check: bool = setting(True, doc="estimate up from the depth of the first frames (gravity.* of "
-                                  "config/data.yaml) and warn when the TF map frame's +z is not up; the node "
-                                  "trusts its map frame (it does not rotate it)")
-    gravity_window_frames: int = setting(0, min=0, doc="frames the gravity check reads (0: gravity.window_frames "
+                                  "config/data.yaml) and warn when the TF map frame's +z is not up")
+    gravity_align: bool = setting(True, doc="with gravity_check: the first frames wait for its verdict, and a "
+                                  "map frame whose +z is not up (past gravity.min_correction_deg) is mapped in "
+                                  "the gravity-aligned frame aligned_frame (child of map_frame on /tf_static); "
+                                  "false: the map frame is trusted, only checked")
+    aligned_frame: str = setting("", doc="name of the gravity-aligned frame (empty: <map_frame>_gravity)")
+    gravity_window_frames: int = setting(10, min=0, doc="frames the gravity check reads (0: gravity.window_frames "
                                          "of config/data.yaml)")
-    gravity_stride: int = setting(0, min=0, doc="every n-th frame goes to the gravity check (0: gravity.stride)")
+    gravity_stride: int = setting(3, min=0, doc="every n-th frame goes to the gravity check (0: gravity.stride); "
+                                  "with gravity_align, window x stride frames (1 s at 30 Hz) wait for it")
     imu_topic: str = setting("", doc="sensor_msgs/Imu topic whose accelerometer checks the map frame's up (TF "
                              "rotates each reading into the map frame; the verdict goes to the map's gravity "
                              "record as `imu`); empty: no IMU")
@@ -163,6 +192,12 @@ class MapperNode(Node):
         # cheaper than the CLI's (it runs inside the integration loop): a quarter of the pixels
         gcfg.downsample, gcfg.samples_per_frame = max(gcfg.downsample, 4), min(gcfg.samples_per_frame, 1500)
         self.gravity_monitor = GravityMonitor(self.gravity_config) if settings.gravity_check else None
+        self.gravity_align = settings.gravity_check and settings.gravity_align
+        self.aligned_frame = settings.aligned_frame or f"{settings.map_frame}_gravity"
+        # frames of the gravity window waiting for its verdict, then released one per step, in order
+        self._held: list[tuple[RGBDFrame, Image, Image]] = []
+        self._held_since = 0.0
+        self._released: collections.deque[tuple[RGBDFrame, Image, Image]] = collections.deque()
         gcfg.imu_samples = settings.imu_samples or gcfg.imu_samples
         self.imu_check = AccelerometerCheck(gcfg) if settings.imu_topic else None
         # the map is guarded by `lock`; a service waiting for it makes the integration loop step
@@ -200,6 +235,7 @@ class MapperNode(Node):
         self.pub_entities = self.create_publisher(PanopticEntityArray, "panoptic_entities", ENTITIES)
         self.pub_markers = self.create_publisher(MarkerArray, "panoptic_map_markers", 1)
         self.pub_status = self.create_publisher(String, "mapper_status", STATUS)
+        self.pub_tf_static = self.create_publisher(TFMessage, "/tf_static", TF_STATIC)
         self.create_service(SaveMap, "save_map", self._srv_save, callback_group=services)
         self.create_service(LoadMap, "load_map", self._srv_load, callback_group=services)
         self.create_service(ResetMap, "reset_map", self._srv_reset, callback_group=services)
@@ -233,6 +269,7 @@ class MapperNode(Node):
         steady_timer(self, self.publish_period_s, self._publish, self.map_group)
         steady_timer(self, settings.status_period_s, self._report, inputs)
         self.diagnostics = diag.NodeDiagnostics(self, "panoptic mapping", self.health, callback_group=inputs)
+        self._publish_alignment()  # a resumed map keeps its frame
         self.get_logger().info(f"data root {self.data_root}; checkpoints "
                                + (f"every {self.config.checkpoint.every_n_frames} frames / "
                                   f"{self.config.checkpoint.every_s:g} s" if self.checkpointer else "disabled"))
@@ -340,7 +377,18 @@ class MapperNode(Node):
 
     def _process_locked(self) -> None:
         self._collect_segmentations()
-        if not self.queue or (self.in_order and self.pending):
+        if self.in_order and self.pending:
+            return
+        if self._released:  # the gravity window's frames, in order, before any newer one
+            held, held_color, held_depth = self._released.popleft()
+            held.index = self.mapper.frames_integrated
+            self._route(held, held_color, held_depth)
+            return
+        if self._held and not self.queue and time.monotonic() - self._held_since > self.HOLD_IDLE_FACTOR * max(
+                self.tf_wait_s, 0.25):
+            self._decide_alignment("the stream paused before the window was full")
+            return
+        if not self.queue:
             return
         color_msg, depth_msg, arrived = self.queue[0]
         # waiting is measured from when the frame reached the head of the queue, not from its stamp
@@ -387,10 +435,23 @@ class MapperNode(Node):
             self.get_logger().warning(f"frame at {stamp * 1e-9:.3f} s: no TF around its stamp (TF from "
                                       f"{span[0] * 1e-9:.3f} to {span[1] * 1e-9:.3f} s after waiting up to "
                                       f"{self.tf_wait_s:g} s); its pose is extrapolated", throttle_duration_sec=5.0)
+        if self._holding():
+            self._held.append((frame, color_msg, depth_msg))
+            self._held_since = time.monotonic()
+            self._check_gravity(frame)  # the verdict releases the held frames
+            return
+        self._check_gravity(frame)
+        self._route(frame, color_msg, depth_msg)
+
+    #: A gravity window whose stream pauses for this many tf_wait_s decides on the frames read.
+    HOLD_IDLE_FACTOR = 4.0
+
+    def _route(self, frame: RGBDFrame, color_msg: Image, depth_msg: Image) -> None:
+        """A posed frame to the map: skipped when the camera stood still, sent for labels when it is a
+        keyframe (integrated when they arrive), integrated at once otherwise."""
         if self.mapper.is_static(frame):  # a still camera: the frame adds nothing (static.* of the config)
             self.counters["static_frames"] += 1
             return
-        self._check_gravity(frame)
         if self.mapper.is_keyframe(frame):
             if not self.use_segmentation:
                 self.mapper.mark_keyframe(frame)
@@ -415,12 +476,19 @@ class MapperNode(Node):
         if (self.gravity_monitor is not None and not self.gravity_monitor.done) or \
                 (self.imu_check is not None and not self.imu_check.done):
             self.mapper.gravity = self._gravity_record()
-        return self.mapper.snapshot()
+        snapshot = self.mapper.snapshot()
+        if self._held:  # a save that early: held frames go to the map right after (the window stays open)
+            self.get_logger().warning(f"map written while {len(self._held)} frames wait for the gravity check")
+        return snapshot
 
     def _gravity_record(self) -> dict:
         """The map's gravity record: the depth check's (GravityMonitor), with the IMU check's as `imu`."""
         mon = self.gravity_monitor
         out = mon.record() if mon is not None else dict(self.mapper.gravity)
+        if mon is not None and not np.array_equal(self.mapper.alignment, np.eye(4)):
+            out.update(mode="auto", applied=True, rotation_deg=rotation_angle_deg(self.mapper.alignment),
+                       input_up=up_of_alignment(self.mapper.alignment).tolist(), frame=self.aligned_frame,
+                       parent_frame=self.map_frame, note=self._alignment_note)
         if self.imu_check is not None:
             out["imu"] = self.imu_check.record()
         return out
@@ -454,11 +522,70 @@ class MapperNode(Node):
         result = mon.feed(frame.depth, frame.intrinsics, frame.pose)
         if result is None:
             return
+        if self._held:
+            self._decide_alignment()
+            return
+        self._report_gravity()
+
+    def _report_gravity(self) -> None:
+        mon = self.gravity_monitor
         self.mapper.gravity = self._gravity_record()
-        if mon.warning:
+        if mon is not None and mon.warning and not self.mapper.gravity.get("applied"):
             self.get_logger().warning(mon.warning)
         else:
             self.get_logger().info(self.mapper.gravity.get("note", ""))
+
+    def _holding(self) -> bool:
+        """Whether frames wait for the gravity verdict: aligning, the check still reading, nothing mapped."""
+        mon = self.gravity_monitor
+        return self.gravity_align and mon is not None and not mon.done and self.mapper.frames_integrated == 0
+
+    def _decide_alignment(self, early: str = "") -> None:
+        """The gravity verdict for the held frames (caller holds the map's lock): a map frame whose +z is
+        not up is replaced by the gravity-aligned frame (Sec. 3 of the paper assumes z up), announced on
+        /tf_static; then the held frames are released to the map, in order."""
+        mon = self.gravity_monitor
+        result = None
+        if mon is not None and not mon.done:
+            result = mon.finish()
+        elif mon is not None:
+            result = mon.result
+        if result is not None and self.gravity_align and self.mapper.frames_integrated == 0:
+            self._apply_alignment(result, early)
+        self._report_gravity()
+        self._released.extend(self._held)
+        self._held.clear()
+
+    def _apply_alignment(self, result: GravityEstimate, early: str) -> None:
+        transform, note = alignment_from_estimate(result, self.gravity_config)
+        if np.array_equal(transform, np.eye(4)):
+            return
+        self.mapper.set_alignment(transform)
+        self._publish_alignment()
+        self.get_logger().warning(
+            f"the TF frame {self.map_frame!r} is not gravity aligned: its +z is {result.angle_deg:.1f} deg from up "
+            f"(estimated from the {result.method} over {result.frames} frames{'; ' + early if early else ''}); "
+            f"the map is built in {self.aligned_frame!r} (static TF {self.map_frame} -> {self.aligned_frame}, "
+            "z up) and every output is in that frame")
+        self._alignment_note = note.replace("gravity auto", "gravity (mapper node)") + \
+            f" into {self.aligned_frame!r}, a child of {self.map_frame!r}"
+
+    _alignment_note = ""
+
+    @property
+    def output_frame(self) -> str:
+        """The frame of the map and every output: the TF map frame, or its gravity-aligned child."""
+        return self.map_frame if np.array_equal(self.mapper.alignment, np.eye(4)) else self.aligned_frame
+
+    def _publish_alignment(self) -> None:
+        """/tf_static map_frame -> aligned frame for a gravity-aligned map (map point = alignment @ input point)."""
+        if np.array_equal(self.mapper.alignment, np.eye(4)):
+            return
+        pose = np.linalg.inv(self.mapper.alignment)  # the aligned frame's pose in the TF map frame
+        if np.any(self.mapper.origin_offset):
+            pose = pose @ _translation(self.mapper.origin_offset)
+        self.pub_tf_static.publish(TFMessage(transforms=[make_transform_stamped(
+            pose, self.map_frame, self.aligned_frame, self.get_clock().now().nanoseconds)]))
 
     def _collect_segmentations(self) -> None:
         still = []
@@ -532,7 +659,7 @@ class MapperNode(Node):
         a checkpoint too, so a restarted mapper never reuses a revision for another mesh.
         Only the publisher (one thread) updates the conversion cache and the published revisions."""
         msg = PanopticEntityArray()
-        msg.header.frame_id = self.map_frame
+        msg.header.frame_id = self.output_frame
         msg.header.stamp = self.get_clock().now().to_msg()
         old, cache = self._msg_cache, {}
         revisions: dict[int, tuple[str, int]] = {}
@@ -582,13 +709,14 @@ class MapperNode(Node):
         self.pub_entities.publish(msg)
         self.counters["publications"] += 1
         self._next_publish = t0 + (time.monotonic() - t0) / self.PUBLISH_DUTY
-        self.pub_markers.publish(map_markers(ents, self.map_frame, msg.header.stamp))
+        self.pub_markers.publish(map_markers(ents, self.output_frame, msg.header.stamp))
 
     def status(self) -> dict:
         """What `mapper_status` and the status log line report."""
         cp = self.checkpointer
         return {"frames_integrated": self.mapper.frames_integrated, "keyframes": self.mapper.keyframes,
-                "dropped_frames": self.counters["dropped_backlog"], "queue": len(self.queue),
+                "dropped_frames": self.counters["dropped_backlog"], "queue": self._queued(),
+                "held_for_gravity": len(self._held), "frame": self.output_frame,
                 # idle = nothing queued, no keyframe waiting for labels, every change published
                 "pending_segmentations": len(self.pending), "unpublished_changes": bool(self._changed),
                 "entity_publications": self.counters["publications"],
@@ -618,7 +746,7 @@ class MapperNode(Node):
             "segmentation_latency_ms": self.segmentation_ms.median_ms(),
             diag.KEY_RECEIVED: c["received"], diag.KEY_PROCESSED: c["integrated"],
             "frames_integrated": self.mapper.frames_integrated, "keyframes": self.mapper.keyframes,
-            diag.KEY_DROPPED: c["dropped_backlog"], diag.KEY_SKIPPED: skipped, diag.KEY_QUEUE: len(self.queue),
+            diag.KEY_DROPPED: c["dropped_backlog"], diag.KEY_SKIPPED: skipped, diag.KEY_QUEUE: self._queued(),
             "pending_segmentations": len(self.pending), "keyframes_without_labels": unlabelled,
             "poses_extrapolated": c["tf_extrapolated"],
             "segmentation_service": service, "unpublished_changes": bool(self._changed),
@@ -638,8 +766,12 @@ class MapperNode(Node):
         if self._last_step_failed:
             h.escalate(diag.ERROR, f"last frame failed: {self.last_error}")
         if h.level == diag.OK:
-            h.message = f"{self.mapper.frames_integrated} frames integrated, queue {len(self.queue)}"
+            h.message = f"{self.mapper.frames_integrated} frames integrated, queue {self._queued()}"
         return h
+
+    def _queued(self) -> int:
+        """Frames not integrated yet: the queue and the gravity window's held and released frames."""
+        return len(self.queue) + len(self._held) + len(self._released)
 
     def _report(self) -> None:
         status = self.status()
@@ -680,6 +812,13 @@ class MapperNode(Node):
         """Checkpoint what was integrated since the last checkpoint (the runner calls this on SIGINT/SIGTERM)."""
         if self._checkpoint_thread is not None:
             self._checkpoint_thread.join(timeout=60)
+        with self.lock:  # frames still waiting for the gravity verdict are mapped (geometry) before the checkpoint
+            if self._held:
+                self._decide_alignment("shutting down")
+            while self._released:
+                frame = self._released.popleft()[0]
+                if self.mapper.frames_integrated == 0 or not self.mapper.is_static(frame):
+                    self._integrate(frame, None, geometry_only=True)
         cp = self.checkpointer
         if cp is None or self.mapper.frames_integrated == 0 or (
                 cp.last_path is not None and cp.last_frames == self.mapper.frames_integrated):
@@ -702,7 +841,7 @@ class MapperNode(Node):
                 snapshot = self._snapshot()
                 ents = self.mapper.entities()
             snapshot.write(folder)
-            save_entities(ents, folder, self.map_frame)
+            save_entities(ents, folder, self.output_frame)
             res.success, res.message = True, f"map saved to {folder} {self._timing(t0)}"
         except (OSError, ValueError) as exc:  # PathConfinementError is both
             res.success, res.message = False, f"cannot save to {req.path!r}: {exc}"
@@ -714,7 +853,10 @@ class MapperNode(Node):
             mapper = PanopticMapper.load(folder)  # read outside the lock: mapping goes on meanwhile
             with self._service_turn():
                 self.mapper = mapper
-                self.gravity_monitor = None  # the loaded map keeps its gravity record
+                self.gravity_monitor = None  # the loaded map keeps its gravity record (and its frame)
+                self._released.extend(self._held)
+                self._held.clear()
+                self._publish_alignment()
                 self.pending.clear()
                 self._changed = True
                 if self.checkpointer is not None:  # the next checkpoint interval counts from the loaded map
@@ -735,9 +877,13 @@ class MapperNode(Node):
         with self._service_turn():
             if self.gravity_monitor is not None and self.gravity_monitor.done:
                 fresh.gravity = dict(self.mapper.gravity)  # the same TF frame: the check stands
+            fresh.set_alignment(self.mapper.alignment, fresh.gravity)  # the same TF frame: the same up
+            fresh.recentre(self.mapper.origin_offset)
             self.mapper = fresh
             self.pending.clear()
             self.queue.clear()
+            self._held.clear()
+            self._released.clear()
             self._changed = True
             if self.checkpointer is not None:
                 self.checkpointer.start(0)
@@ -756,6 +902,12 @@ class MapperNode(Node):
             res.success, res.message = False, f"entity extraction failed: {exc}"
         return res
 
+
+
+def _translation(offset: np.ndarray) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, 3] = offset
+    return t
 
 
 def _mesh_digest(e) -> str:

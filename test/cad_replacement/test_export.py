@@ -51,6 +51,18 @@ def test_tree_names_joints_and_support(scene):
     assert {"cup_1", "bottle_1", "box_1"}.isdisjoint(lk.name for lk in static.links)
 
 
+def test_the_tree_is_rooted_at_the_scenes_frame(scene):
+    """A map built in another TF frame (the mapper node's gravity-aligned `map_gravity`): the URDF's root
+    link, and so the parent of every TF the replacer publishes, is that frame, not a `map` it is not in."""
+    aligned = ReplacedScene(scene.name, list(scene), frame_id="map_gravity", revision=scene.revision)
+    tree = scene_to_tree(aligned)
+    assert tree.root == "map_gravity" and MAP_ROOT not in {lk.name for lk in tree.links}
+    assert {j.parent for j in tree.joints if j.child == "cabinet_1"} == {"map_gravity"}
+    same = scene_to_tree(scene).link_poses()
+    for name, pose in tree.link_poses().items():  # the same kinematics below the root
+        np.testing.assert_allclose(pose, same[MAP_ROOT if name == "map_gravity" else name], atol=1e-12)
+
+
 def test_urdf_parses_and_forward_kinematics_match_the_scene(scene, exported):
     robot = yourdfpy.URDF.load(str(exported.urdf), load_meshes=True, build_collision_scene_graph=True,
                                load_collision_meshes=True)
