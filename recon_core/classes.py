@@ -36,7 +36,7 @@ CATEGORIES: tuple[str, ...] = ("layout", "rigid", "articulated")
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 _CLASS_KEYS = {"id", "name", "category", "is_thing", "movable", "density", "coco"}
 #: Keys a class may leave out (default false).
-_OPTIONAL_CLASS_KEYS = {"round", "max_size_m"}
+_OPTIONAL_CLASS_KEYS = {"round", "max_size_m", "flush"}
 _TOP_KEYS = {"version", "classes", "confusion_groups"}
 
 
@@ -59,6 +59,9 @@ class ClassInfo:
     #: mesh holds a horizontal or vertical plane much larger than this has swallowed layout surface
     #: (a detection mask bleeding onto the wall): the contact-graph builder gives that plane back.
     max_size_m: float | None = None
+    #: Instances may lie flat in a layout plane (a screen on a wall): the faces they have in a floor or
+    #: wall plane are theirs. Other things give such faces to the layout (scene_graph.geometric_layout).
+    flush: bool = False
 
     @property
     def is_layout(self) -> bool:
@@ -146,7 +149,7 @@ def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
     where = f"class {name!r}"
     if raw["category"] not in CATEGORIES:
         raise _fail(path, where, f"category must be one of {CATEGORIES}, got {raw['category']!r}")
-    for flag in ("is_thing", "movable", "round"):
+    for flag in ("is_thing", "movable", "round", "flush"):
         if not isinstance(raw.get(flag, False), bool):
             raise _fail(path, where, f"{flag} must be true/false, got {raw.get(flag)!r}")
     density = raw["density"]
@@ -180,6 +183,7 @@ def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
         coco_names=tuple(coco),
         round=raw.get("round", False),
         max_size_m=float(max_size) if max_size is not None else None,
+        flush=raw.get("flush", False),
     )
 
 

@@ -19,6 +19,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from recon_core.contact_graph import ROOT_ID, ContactGraph, GraphNode, SupportEdge, root_node
 from recon_core.entity import Entity, EntityError
@@ -28,9 +29,16 @@ from scene_graph.classify import LAYOUT, class_info, classify
 from scene_graph.config import SceneGraphConfig, load_scene_graph_config
 from scene_graph.features import NodeFeatures, compute_features
 from scene_graph.fragments import drop_fragments
-from scene_graph.geometric_layout import concat_entities, give_up_layout_planes, layout_from_geometry
+from scene_graph.geometric_layout import (
+    LayoutPlane,
+    concat_entities,
+    faces_on_layout,
+    give_up_layout_planes,
+    layout_from_geometry,
+    planes_of_layout,
+)
 from scene_graph.joints import SupportJointTable, load_support_joints
-from scene_graph.layout import split_layout
+from scene_graph.layout import _faces, split_layout, sub_entity
 from scene_graph.merge import fragment_hosts, merged_entity
 from scene_graph.proximal import proximal_relations
 from scene_graph.refine import refine_box
@@ -84,6 +92,11 @@ class ContactGraphBuilder:
         self._layout_key: tuple | None = None
         self._layout_revision = 0
         self.layout_info: dict[str, dict[str, int]] = {}
+        #: The derived layout's planes; per thing, its mesh before it gave up the faces in them, and
+        #: which faces it gave up (their indices' digest, and their area) when it did.
+        self._planes: list[LayoutPlane] = []
+        self._untrimmed: dict[int, Entity] = {}
+        self._trim: dict[int, tuple[bytes, float]] = {}
 
     @property
     def ids(self) -> list[int]:
@@ -125,15 +138,16 @@ class ContactGraphBuilder:
         cached = self._cache.get(e.id)
         if cached is not None and cached.revision == e.revision and e.id not in self.skipped:
             return False
-        sup = self.cfg.support
         revision = e.revision
         try:
             with single_blas_thread():
                 e = self._give_up_layout(e)
-                parts = split_layout(e, self.cfg.layout, sup.wall_classes, sup.floor_classes + sup.ceiling_classes)
-                if classify(e.class_name, e.category, self.cfg.class_table).category != LAYOUT:
-                    parts = [drop_fragments(e, self.cfg.fragments)]
-                feats = [compute_features(p, self.cfg) for p in parts]
+                self._untrimmed.pop(e.id, None)
+                self._trim.pop(e.id, None)
+                if self._trims(e):
+                    self._untrimmed[e.id] = e
+                    e = self._trimmed(e)
+                feats = self._features(e)
         except EntityError as exc:
             log.warning("skipping entity %s: %s", e.id, exc)
             self._cache.pop(e.id, None)
@@ -142,6 +156,67 @@ class ContactGraphBuilder:
         self.skipped.pop(e.id, None)
         self._cache[e.id] = _Cached(revision, feats, len(feats) > 1)
         return True
+
+    def _features(self, e: Entity) -> list[NodeFeatures]:
+        """The entity's node(s): the parts of a layout entity, or the thing without its fragments."""
+        sup = self.cfg.support
+        parts = split_layout(e, self.cfg.layout, sup.wall_classes, sup.floor_classes + sup.ceiling_classes)
+        if classify(e.class_name, e.category, self.cfg.class_table).category != LAYOUT:
+            parts = [drop_fragments(e, self.cfg.fragments)]
+        return [compute_features(p, self.cfg) for p in parts]
+
+    def _trims(self, e: Entity) -> bool:
+        """Whether the entity gives its faces in derived layout planes up: a thing, not `flush`."""
+        if not self.cfg.geometric_layout.enabled or not e.has_faces or e.id in self._derived.values():
+            return False
+        info = class_info(e.class_name, self.cfg.class_table)
+        return info is None or (not info.is_layout and not info.flush)
+
+    def _layout_mask(self, e: Entity) -> NDArray:
+        gl = self.cfg.geometric_layout
+        return faces_on_layout(e, self._planes, gl.layout_band, gl.layout_band_deg, gl.layout_band_margin)
+
+    def _trimmed(self, e: Entity, mask: NDArray | None = None) -> Entity:
+        """The thing without its faces in the derived layout planes (a thing that is all plane keeps all)."""
+        mask = self._layout_mask(e) if mask is None else mask
+        if not mask.any() or mask.all():
+            self._trim.pop(e.id, None)
+            return e
+        _c, _n, area = _faces(e)
+        self._trim[e.id] = (np.flatnonzero(mask).tobytes(), float(area[mask].sum()))
+        return sub_entity(e, ~mask)
+
+    def _apply_planes(self, planes: list[LayoutPlane]) -> list[int]:
+        """New derived layout planes: things whose faces in them changed get their node recomputed."""
+        self._planes = planes
+        changed = []
+        for eid, e in list(self._untrimmed.items()):
+            cached = self._cache.get(eid)
+            if cached is None:
+                del self._untrimmed[eid]
+                self._trim.pop(eid, None)
+                continue
+            mask = self._layout_mask(e)
+            old = self._trim.get(eid)
+            new_key = np.flatnonzero(mask).tobytes() if mask.any() and not mask.all() else None
+            if (old[0] if old else None) == new_key:
+                continue
+            try:
+                with single_blas_thread():
+                    cached.nodes = self._features(self._trimmed(e, mask))
+            except EntityError as exc:
+                log.warning("entity %s without its layout faces: %s", eid, exc)
+                continue
+            changed.append(eid)
+        if changed:
+            log.info("things without the faces they had in the floor/wall planes: %s", ", ".join(
+                f"{i} ({self._trim[i][1]:.2f} m^2)" if i in self._trim else str(i) for i in changed))
+        return changed
+
+    @property
+    def layout_faces_given(self) -> dict[int, float]:
+        """Per thing id, the area (m^2) of its faces given to the derived floor / wall planes."""
+        return {i: round(t[1], 4) for i, t in sorted(self._trim.items())}
 
     def _give_up_layout(self, e: Entity) -> Entity:
         """The thing without the layout planes it cannot own (recorded for the derived layout)."""
@@ -172,7 +247,7 @@ class ContactGraphBuilder:
         if self._has_labelled_layout():
             self._drop_derived()
             self._layout_key = None  # derive again should the labelled layout go
-            return []
+            return self._apply_planes([]) if self._planes else []
         pieces = [self._given_up[i] for i in sorted(self._given_up)]
         u = self._unlabelled
         key = ((u.id, u.revision, len(u.faces)) if u is not None else None,
@@ -182,7 +257,7 @@ class ContactGraphBuilder:
         self._layout_key = key
         self._drop_derived()
         if u is None and not pieces:
-            return []
+            return self._apply_planes([]) if self._planes else []
         base = u if u is not None else pieces[0]
         surface = concat_entities(base, pieces if u is not None else pieces[1:])
         derived = set(self._derived.values())
@@ -208,6 +283,9 @@ class ContactGraphBuilder:
                 rebuilt.append(eid)
         self.layout_info = {role: {"id": self._derived[role], "faces": len(found[role].faces)}
                             for role in self._derived}
+        with single_blas_thread():
+            planes = planes_of_layout(found, self.cfg.layout, gl.wall_strip_min_area)
+        rebuilt += self._apply_planes(planes)
         if found:
             log.info("layout from geometry: %s", ", ".join(f"{r} ({v['faces']} faces)"
                                                             for r, v in self.layout_info.items()))
@@ -273,6 +351,7 @@ class ContactGraphBuilder:
         t2 = time.perf_counter()
         graph.stats = {
             "layout_parts": layout_parts, "merged_fragments": merged, "geometric_layout": dict(self.layout_info),
+            "layout_faces_given_m2": {str(k): v for k, v in self.layout_faces_given.items()},
             "nodes": len(feats), "support_candidate_pairs": support_pairs, "support_plane_tests": support.plane_tests,
             "proximal_broadphase_pairs": prox.broadphase_pairs, "proximal_exact_tests": prox.exact_tests,
             "support_s": t1 - t0, "relations_s": t2 - t1,

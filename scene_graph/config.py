@@ -122,6 +122,12 @@ class GeometricLayoutConfig(Settings):
     size_factor: float = setting(1.25, min=1.0)
     give_up_min_area: float = setting(0.3, min=0.0)
     give_up_min_share: float = setting(0.2, min=0.0, max=1.0)
+    #: Once floor and walls are derived, a thing's faces within layout_band (m) of one of their planes,
+    #: parallel to it (layout_band_deg) and within a wall's span (+ layout_band_margin) are layout: a
+    #: detection mask bleeding onto the floor or the wall behind it (classes marked `flush` keep theirs).
+    layout_band: float = setting(0.02, min=0.0)
+    layout_band_deg: float = setting(15.0, min=0.0, max=90.0)
+    layout_band_margin: float = setting(0.3, min=0.0)
     #: Coplanar faces farther apart than this (m) are two planar parts.
     plane_max_gap: float = setting(0.3, min=0.0)
     #: Ids of the derived floor, wall and ceiling entities: id_base, +1, +2 (must exceed every map id).

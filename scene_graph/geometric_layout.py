@@ -224,6 +224,70 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
     return out
 
 
+@dataclass(frozen=True)
+class LayoutPlane:
+    """A derived floor / ceiling (horizontal, at ``offset`` = height) or wall part (``normal`` horizontal,
+    ``offset`` = centroid . normal, spanning ``span`` along the horizontal in-plane direction)."""
+
+    role: str
+    normal: NDArray
+    offset: float
+    span: tuple[float, float] = (-np.inf, np.inf)
+
+
+def planes_of_layout(found: dict[str, Entity], layout: LayoutConfig, wall_min_area: float) -> list[LayoutPlane]:
+    """The planes of ``layout_from_geometry``'s floor, ceiling and wall parts of at least ``wall_min_area``
+    (m^2; smaller pieces of the wall entity are its clutter, not planes) as area-weighted medians."""
+    out: list[LayoutPlane] = []
+    z_up = np.array([0.0, 0.0, 1.0])
+    for role in ("floor", "ceiling"):
+        e = found.get(role)
+        if e is None or not e.has_faces:
+            continue
+        c, n, a = _faces(e)
+        flat = (np.abs(n[:, 2]) >= HORIZONTAL_NZ) & (a > 0)
+        if flat.any():
+            out.append(LayoutPlane(role, z_up, _weighted_median(c[flat, 2], a[flat])))
+    wall = found.get("wall")
+    if wall is not None and wall.has_faces:
+        masks, _dropped = wall_parts(wall, replace(layout, min_area=wall_min_area, min_length=0.0))
+        c, n, a = _faces(wall)
+        for m in masks:
+            vert = m & (np.abs(n[:, 2]) < layout.vertical_max_nz) & (a > 0)
+            if not vert.any():
+                continue
+            u = _wall_normal(n[vert], a[vert])
+            along = np.cross(z_up, u)
+            t = wall.vertices[np.unique(wall.faces[vert])] @ along
+            out.append(LayoutPlane("wall", u, _weighted_median(c[vert] @ u, a[vert]), (float(t.min()), float(t.max()))))
+    return out
+
+
+def faces_on_layout(entity: Entity, planes: list[LayoutPlane], band: float, max_angle_deg: float,
+                    margin: float) -> NDArray:
+    """Faces of ``entity`` lying in a layout plane: within ``band`` (m) of it, their normal within
+    ``max_angle_deg`` of its normal (either side), and (walls) within its span grown by ``margin``."""
+    if not entity.has_faces or not planes:
+        return np.zeros(len(entity.faces), bool)
+    c, n, a = _faces(entity)
+    cos = float(np.cos(np.radians(max_angle_deg)))
+    on = np.zeros(len(a), bool)
+    z_up = np.array([0.0, 0.0, 1.0])
+    for p in planes:
+        hit = (np.abs(n @ p.normal) >= cos) & (np.abs(c @ p.normal - p.offset) <= band) & (a > 0)
+        if p.role == "wall":
+            t = c @ np.cross(z_up, p.normal)
+            hit &= (t >= p.span[0] - margin) & (t <= p.span[1] + margin)
+        on |= hit
+    return on
+
+
+def _weighted_median(values: NDArray, weights: NDArray) -> float:
+    order = np.argsort(values)
+    cum = np.cumsum(weights[order])
+    return float(values[order][int(np.searchsorted(cum, 0.5 * cum[-1]))])
+
+
 def _wall_normal(normals: NDArray, areas: NDArray) -> NDArray:
     """Area-weighted horizontal normal of a wall's faces (both sides folded onto one)."""
     ref = normals[int(np.argmax(areas))]

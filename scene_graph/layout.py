@@ -87,6 +87,8 @@ def sub_entity(entity: Entity, face_mask: NDArray, **kw) -> Entity:
     """The entity restricted to some faces (vertices re-indexed), other fields replaced by ``kw``."""
     faces = entity.faces[face_mask]
     used, inverse = np.unique(faces.ravel(), return_inverse=True)
+    if "core_vertices" not in kw and entity.core_vertices >= 0:  # the voted core stays first (``used`` is sorted)
+        kw["core_vertices"] = int(np.count_nonzero(used < entity.core_vertices))
     return replace(entity, vertices=entity.vertices[used], faces=inverse.reshape(-1, 3), **kw)
 
 

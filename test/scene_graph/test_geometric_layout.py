@@ -226,3 +226,68 @@ def test_a_wall_seen_only_above_a_counter_is_a_wall():
     cfg.geometric_layout.wall_strip_min_height = cfg.geometric_layout.wall_min_height
     assert sum(n.class_name == "wall" for n in build_contact_graph([unknown([floor, north, strip, *counter])],
                                                                    cfg).nodes.values()) == 1
+
+
+# ------------------------------------------------------------------ things leave the layout planes alone
+def chair_with_bleed() -> trimesh.Trimesh:
+    """A chair whose mask bled onto the floor beside it (0.6 m x 0.4 m: below give_up_min_area, so the
+    per-thing size rule keeps it) and onto the skirting of the north wall behind it (0.5 m x 0.2 m)."""
+    return trimesh.util.concatenate([chair_with_wall(False), patch([0.6, 0.6, 0.004], [0.6, 0, 0], [0, 0.4, 0]),
+                                     patch([0.0, 1.5, 0.0], [0.5, 0, 0], [0, 0, 0.2], 10, 4)])
+
+
+def test_things_give_their_faces_in_the_derived_floor_and_walls_to_the_layout():
+    chair = Entity.from_mesh(7, "chair_7", "chair", chair_with_bleed(), class_id=12)
+    # a screen hung on the east wall: its back in the wall plane, its front 2 cm off it (flush: kept)
+    screen = Entity.from_mesh(8, "monitor_8", "monitor", box([1.98, -0.4, 1.0], [2.0, 0.4, 1.5]), class_id=16)
+    # a book lying on the floor, 3 cm thick: its top is above the band (2 cm); its bottom (never seen in a
+    # real map) is in the floor plane
+    book = Entity.from_mesh(9, "book_9", "book", box([-1.0, -1.0, 0.0], [-0.8, -0.75, 0.03]), class_id=21)
+    surface = unknown(room_surface(ceiling=False))
+    g = build_contact_graph([surface, chair, screen, book])
+    given = g.stats["layout_faces_given_m2"]
+    assert set(given) == {"7", "9"} and given["7"] == pytest.approx(0.24 + 0.1, abs=0.03)
+    assert given["9"] == pytest.approx(0.2 * 0.25, abs=1e-6)
+    chair_box = g.nodes[7].box_unrefined  # the chair's own box: 0.5 m x 0.45 m, not the bleed's 1.2 m x 0.9 m
+    assert chair_box.size[:2].max() < 0.55 and chair_box.size[2] == pytest.approx(0.9, abs=0.01)
+    assert g.nodes[g.parent(7)].class_name == "floor"
+    assert g.nodes[8].box_unrefined.size[1] == pytest.approx(0.8, abs=0.02)
+    assert g.nodes[9].box_unrefined.size[2] == pytest.approx(0.03, abs=0.005)
+    # without derived layout (the map has floor and wall labels) nothing is taken: the planes are the network's
+    floor = Entity.from_mesh(1, "floor", "floor", patch([-2, -1.5, 0], [4, 0, 0], [0, 3, 0], 40, 30),
+                             is_thing=False, category="layout")
+    labelled = build_contact_graph([floor, chair])
+    assert labelled.stats["layout_faces_given_m2"] == {} and labelled.nodes[7].box_unrefined.size[:2].max() > 1.0
+    # the band can be switched off (0): the chair keeps its bleed
+    off = SceneGraphConfig()
+    off.geometric_layout.layout_band = 0.0
+    assert build_contact_graph([surface, chair], off).nodes[7].box_unrefined.size[:2].max() > 1.0
+
+
+def test_incremental_builder_trims_a_thing_that_arrives_after_the_layout_and_untrims_once_labels_arrive():
+    b = ContactGraphBuilder(SceneGraphConfig())
+    b.update([unknown(room_surface(ceiling=False))])
+    assert b.build().stats["layout_faces_given_m2"] == {}
+    chair = Entity.from_mesh(7, "chair_7", "chair", chair_with_bleed(), class_id=12)
+    rebuilt = b.update([chair])
+    assert rebuilt == [7]  # the layout did not change: only the new thing, trimmed by the planes held
+    g = b.build()
+    assert "7" in g.stats["layout_faces_given_m2"] and g.nodes[7].box_unrefined.size[:2].max() < 0.55
+    floor = Entity.from_mesh(3, "floor", "floor", patch([-2, -1.5, 0], [4, 0, 0], [0, 3, 0], 40, 30),
+                             is_thing=False, category="layout")
+    b.update([floor])  # labelled layout: the derived planes go, the chair gets its faces back
+    g = b.build()
+    assert g.stats["layout_faces_given_m2"] == {} and g.nodes[7].box_unrefined.size[:2].max() > 1.0
+
+
+def test_sub_entity_keeps_the_voted_core_count():
+    from scene_graph.layout import sub_entity
+
+    mesh = patch([0, 0, 0], [1, 0, 0], [0, 1, 0], 4, 4)
+    e = Entity.from_mesh(5, "cup_5", "cup", mesh, class_id=1)
+    e.set_geometry(e.vertices, e.faces, core_vertices=10)
+    keep = np.all(e.faces >= 5, axis=1)  # drop the faces touching vertices 0-4
+    sub = sub_entity(e, keep)
+    used = np.unique(e.faces[keep])
+    assert sub.core_vertices == int(np.count_nonzero(used < 10))
+    np.testing.assert_array_equal(sub.vertices[: sub.core_vertices], e.vertices[used[used < 10]])
