@@ -49,6 +49,7 @@ from recon_core.geometry.box import GravityBox
 from recon_core.geometry.box_fit import fit_gravity_box
 from recon_core.geometry.plane import Plane
 from recon_core.geometry.plane_fit import sample_mesh
+from scene_graph.blas import single_blas_thread
 
 log = logging.getLogger(__name__)
 
@@ -309,7 +310,15 @@ class CadReplacer:
 
     # ------------------------------------------------------------------ scene
     def replace(self, graph: ContactGraph, entities: Mapping[int, Entity], name: str = "") -> ReplacementResult:
-        """Replace every node of ``graph`` (``entities``: node id -> its geometry in the map frame)."""
+        """Replace every node of ``graph`` (``entities``: node id -> its geometry in the map frame).
+
+        Runs with one BLAS thread: the fits multiply matrices of a few hundred points, far too small
+        for OpenBLAS threads to pay: on 2 cores a kitchen scene (18 objects, warm caches) took 4.5-5.1 s
+        and 6.7-7.3 CPU s with them, 4.1-4.2 s and 4.4-4.5 CPU s with one (``scene_graph.blas``)."""
+        with single_blas_thread():
+            return self._replace(graph, entities, name)
+
+    def _replace(self, graph: ContactGraph, entities: Mapping[int, Entity], name: str) -> ReplacementResult:
         t0 = time.perf_counter()
         graph.validate()
         walls = [p.plane for n in graph.nodes.values() if n.category == LAYOUT and n.class_name == "wall"
