@@ -270,12 +270,11 @@ class ContactGraphNode(Node):
         self.builder.remove(int(i) for i in msg.removed_ids)
         if self.snapshot:
             present = {int(e.id) for e in msg.entities}
-            self.builder.remove(i for i in self.builder.ids if i not in present)
+            self.builder.remove([s.id for s in self.builder.source_entities() if s.id not in present])
         fresh = []
         for e in msg.entities:
-            known = int(e.id) in self.builder.ids
-            if known and self.builder.features(int(e.id)).entity.revision == int(e.revision):
-                continue  # unchanged: skip the (costly) mesh conversion too
+            if self.builder.source_revision(int(e.id)) == int(e.revision):
+                continue  # unchanged (the unlabelled surface too): skip the (costly) mesh conversion
             try:
                 fresh.append(msg_to_entity(e, self.mesh_root))
             except EntityError as exc:
@@ -311,7 +310,7 @@ class ContactGraphNode(Node):
     def _rebuild_from_scratch(self) -> None:
         """Build the graph from all current entities with a fresh builder (= `scene-recon graph`)."""
         assert self._header is not None
-        entities = [self.builder.features(i).entity for i in self.builder.ids]
+        entities = self.builder.source_entities()  # as given: the unlabelled surface too
         builder = ContactGraphBuilder(self._cfg, self._joints)
         builder.update(entities)
         self.builder = builder

@@ -97,6 +97,20 @@ class ContactGraphBuilder:
         self._planes: list[LayoutPlane] = []
         self._untrimmed: dict[int, Entity] = {}
         self._trim: dict[int, tuple[bytes, float]] = {}
+        #: Every entity as it was given (newest revision per id, ignored classes included): what a build
+        #: from scratch starts from (``source_entities``).
+        self._sources: dict[int, Entity] = {}
+
+    def source_entities(self) -> list[Entity]:
+        """The entities held, as they were given (not the nodes' processed geometry: things without
+        the layout they gave up, fragments dropped), the unlabelled surface included: a fresh builder
+        given these builds the graph a batch build of the same map gives."""
+        return [self._sources[i] for i in sorted(self._sources)]
+
+    def source_revision(self, entity_id: int) -> int | None:
+        """The revision of the entity held under this id (None: none is held): unchanged ones can be skipped."""
+        e = self._sources.get(int(entity_id))
+        return None if e is None else int(e.revision)
 
     @property
     def ids(self) -> list[int]:
@@ -120,6 +134,7 @@ class ContactGraphBuilder:
         gl = self.cfg.geometric_layout
         rebuilt = []
         for e in entities:
+            self._sources[e.id] = e
             if gl.enabled and e.class_name in gl.source_classes:
                 self._unlabelled = e
             if self._update_one(e):
@@ -306,6 +321,9 @@ class ContactGraphBuilder:
             self._cache.pop(int(i), None)
             self.skipped.pop(int(i), None)
             self._given_up.pop(int(i), None)
+            self._sources.pop(int(i), None)
+            self._untrimmed.pop(int(i), None)
+            self._trim.pop(int(i), None)
             if self._unlabelled is not None and self._unlabelled.id == int(i):
                 self._unlabelled = None
         if self.cfg.geometric_layout.enabled:

@@ -291,3 +291,22 @@ def test_sub_entity_keeps_the_voted_core_count():
     used = np.unique(e.faces[keep])
     assert sub.core_vertices == int(np.count_nonzero(used < 10))
     np.testing.assert_array_equal(sub.vertices[: sub.core_vertices], e.vertices[used[used < 10]])
+
+
+def test_a_fresh_builder_given_the_source_entities_builds_the_same_graph():
+    """The contact-graph node rebuilds from scratch once entities stop coming: from the entities as
+    given (the unlabelled surface included), not from the nodes' processed geometry, which holds no
+    unlabelled surface (its class is ignored) and so lost the derived floor and walls every time."""
+    chair = Entity.from_mesh(7, "chair_7", "chair", chair_with_bleed(), class_id=12)
+    b = ContactGraphBuilder(SceneGraphConfig())
+    b.update([unknown(room_surface(ceiling=False))])
+    b.build()
+    b.update([chair])
+    g = b.build()
+    assert [e.id for e in b.source_entities()] == [0, 7] and b.source_revision(7) == chair.revision
+    fresh = ContactGraphBuilder(SceneGraphConfig())
+    fresh.update(b.source_entities())
+    assert fresh.build().to_dict() | {"stats": None} == g.to_dict() | {"stats": None}
+    assert {n.class_name for n in g.nodes.values()} >= {"floor", "wall", "chair"}
+    b.remove([7])
+    assert b.source_revision(7) is None and b.layout_faces_given == {}
