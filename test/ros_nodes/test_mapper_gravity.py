@@ -49,9 +49,10 @@ def _angle(a, b) -> float:
     return float(np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
 
 
-def test_mapper_node_maps_a_tilted_map_frame_in_a_gravity_aligned_frame(tmp_path):
+def _map_over_dds(tmp_path, save_as: str, *params: str) -> dict:
+    """Play the tilted TUM folder (tmp_path/tum) into a mapper node started with ``params``, wait until
+    every frame was taken, save the map as ``save_as``; what the test needs from the run."""
     import rclpy
-    import trimesh
     from scene_recon_interfaces.msg import PanopticEntityArray
     from scene_recon_interfaces.srv import SaveMap
     from std_msgs.msg import String
@@ -60,28 +61,27 @@ def test_mapper_node_maps_a_tilted_map_frame_in_a_gravity_aligned_frame(tmp_path
     from ros_nodes.conversions import transform_to_matrix
     from ros_nodes.qos import ENTITIES, STATUS, TF_STATIC
 
-    _tilted_tum(tmp_path / "tum")
     domain = str(domain_id("spare3"))
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=domain)
     os.environ["ROS_DOMAIN_ID"] = domain
     py = sys.executable
-    mapper = subprocess.Popen([py, "-m", "ros_nodes.mapper_node", "--ros-args", "-p", f"data_root:={tmp_path}",
-                               "-p", "use_segmentation:=false", "-p", "tf_reliable:=true", "-p", "in_order:=true",
-                               "-p", "gravity_window_frames:=6", "-p", "gravity_stride:=2",
-                               "-p", "publish_period_s:=0.5", "-p", "status_period_s:=0.5"],
-                              env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    args = [py, "-m", "ros_nodes.mapper_node", "--ros-args", "-p", f"data_root:={tmp_path}",
+            "-p", "use_segmentation:=false", "-p", "tf_reliable:=true", "-p", "in_order:=true",
+            "-p", "gravity_window_frames:=6", "-p", "gravity_stride:=2",
+            "-p", "publish_period_s:=0.5", "-p", "status_period_s:=0.5"]
+    for param in params:
+        args += ["-p", param]
+    mapper = subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     rclpy.init()
     node = rclpy.create_node("gravity_checker")
-    statics: dict[tuple[str, str], np.ndarray] = {}
-    entities: list = []
-    statuses: list[dict] = []
-    saved = None
+    out: dict = {"statics": {}, "entities": [], "statuses": [], "saved": None}
     try:
-        node.create_subscription(TFMessage, "/tf_static", lambda m: statics.update(
+        node.create_subscription(TFMessage, "/tf_static", lambda m: out["statics"].update(
             {(t.header.frame_id, t.child_frame_id): transform_to_matrix(t.transform) for t in m.transforms}),
             TF_STATIC)
-        node.create_subscription(PanopticEntityArray, "panoptic_entities", entities.append, ENTITIES)
-        node.create_subscription(String, "mapper_status", lambda m: statuses.append(json.loads(m.data)), STATUS)
+        node.create_subscription(PanopticEntityArray, "panoptic_entities", out["entities"].append, ENTITIES)
+        node.create_subscription(String, "mapper_status", lambda m: out["statuses"].append(json.loads(m.data)),
+                                 STATUS)
         save = node.create_client(SaveMap, "save_map")
         assert save.wait_for_service(timeout_sec=60), "mapper node did not come up"
         player = subprocess.run(
@@ -89,19 +89,29 @@ def test_mapper_node_maps_a_tilted_map_frame_in_a_gravity_aligned_frame(tmp_path
              "-p", "rate:=1.0", "-p", "wait_for_subscribers:=1"],
             env=env, capture_output=True, text=True, timeout=120)
         assert player.returncode == 0, player.stdout + player.stderr
+        statuses = out["statuses"]
         assert spin_until(node, lambda: bool(statuses) and statuses[-1]["frames_integrated"] >= 14
                           and statuses[-1]["queue"] == 0 and not statuses[-1]["unpublished_changes"], 60), statuses[-1:]
-        spin_until(node, lambda: bool(entities) and ("map", "map_gravity") in statics, 10)
-        fut = save.call_async(SaveMap.Request(path="tilted"))
+        spin_until(node, lambda: bool(out["entities"]), 10)
+        fut = save.call_async(SaveMap.Request(path=save_as))
         rclpy.spin_until_future_complete(node, fut, timeout_sec=60)
-        saved = fut.result()
+        out["saved"] = fut.result()
     finally:
         node.destroy_node()
         rclpy.shutdown()
         mapper.terminate()
-        log = mapper.communicate(timeout=30)[0]
-    assert saved is not None and saved.success, log[-3000:]
-    meta = json.loads((tmp_path / "tilted" / "map.json").read_text())
+        out["log"] = mapper.communicate(timeout=30)[0]
+    assert out["saved"] is not None and out["saved"].success, out["log"][-3000:]
+    out["meta"] = json.loads((tmp_path / save_as / "map.json").read_text())
+    return out
+
+
+def test_mapper_node_maps_a_tilted_map_frame_in_a_gravity_aligned_frame(tmp_path):
+    import trimesh
+
+    _tilted_tum(tmp_path / "tum")
+    run = _map_over_dds(tmp_path, "tilted")
+    meta, log, statuses = run["meta"], run["log"], run["statuses"]
     g = meta["gravity"]
     # the verdict: the TF frame's up is 65 deg from its +z; the map is rotated so that true up is +z
     assert g["applied"] and g["mode"] == "auto" and g["frame"] == "map_gravity" and g["parent_frame"] == "map", g
@@ -113,8 +123,8 @@ def test_mapper_node_maps_a_tilted_map_frame_in_a_gravity_aligned_frame(tmp_path
     # every frame mapped, none lost to the wait; outputs in the aligned frame, announced on /tf_static
     assert meta["frames_integrated"] == 16, (meta["frames_integrated"], log[-2000:])
     assert statuses[-1]["frame"] == "map_gravity" and statuses[-1]["held_for_gravity"] == 0
-    assert entities and entities[-1].header.frame_id == "map_gravity"
-    assert np.allclose(statics[("map", "map_gravity")], np.linalg.inv(alignment), atol=1e-6)
+    assert run["entities"] and run["entities"][-1].header.frame_id == "map_gravity"
+    assert np.allclose(run["statics"][("map", "map_gravity")], np.linalg.inv(alignment), atol=1e-6)
     assert json.loads((tmp_path / "tilted" / "entities.json").read_text())["map_frame"] == "map_gravity"
     # the floor is horizontal in the map: the most populated 4 cm height slice holds much of the surface
     z = trimesh.load(tmp_path / "tilted" / "meshes" / "0.ply", force="mesh", process=False).vertices[:, 2]
@@ -124,49 +134,11 @@ def test_mapper_node_maps_a_tilted_map_frame_in_a_gravity_aligned_frame(tmp_path
 
 def test_gravity_align_false_trusts_the_tilted_frame_and_warns(tmp_path):
     """The old behaviour stays selectable: the frame is trusted (no rotation, no wait), the check warns."""
-    import rclpy
-    from scene_recon_interfaces.srv import SaveMap
-    from std_msgs.msg import String
-
-    from ros_nodes.qos import STATUS
-
     _tilted_tum(tmp_path / "tum")
-    domain = str(domain_id("spare3"))
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=domain)
-    os.environ["ROS_DOMAIN_ID"] = domain
-    py = sys.executable
-    mapper = subprocess.Popen([py, "-m", "ros_nodes.mapper_node", "--ros-args", "-p", f"data_root:={tmp_path}",
-                               "-p", "use_segmentation:=false", "-p", "tf_reliable:=true",
-                               "-p", "gravity_align:=false", "-p", "gravity_window_frames:=6",
-                               "-p", "gravity_stride:=2", "-p", "status_period_s:=0.5"],
-                              env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    rclpy.init()
-    node = rclpy.create_node("gravity_checker")
-    saved = None
-    statuses: list[dict] = []
-    try:
-        node.create_subscription(String, "mapper_status", lambda m: statuses.append(json.loads(m.data)), STATUS)
-        save = node.create_client(SaveMap, "save_map")
-        assert save.wait_for_service(timeout_sec=60), "mapper node did not come up"
-        player = subprocess.run(
-            [py, "-m", "ros_nodes.rgbd_player", "--ros-args", "-p", f"source:={tmp_path / 'tum'}",
-             "-p", "rate:=1.0", "-p", "wait_for_subscribers:=1"],
-            env=env, capture_output=True, text=True, timeout=120)
-        assert player.returncode == 0, player.stdout + player.stderr
-        assert spin_until(node, lambda: bool(statuses) and statuses[-1]["frames_integrated"] >= 14
-                          and statuses[-1]["queue"] == 0, 60), statuses[-1:]
-        fut = save.call_async(SaveMap.Request(path="trusted"))
-        rclpy.spin_until_future_complete(node, fut, timeout_sec=60)
-        saved = fut.result()
-    finally:
-        node.destroy_node()
-        rclpy.shutdown()
-        mapper.terminate()
-        log = mapper.communicate(timeout=30)[0]
-    assert saved is not None and saved.success, log[-3000:]
-    meta = json.loads((tmp_path / "trusted" / "map.json").read_text())
-    g = meta["gravity"]
+    run = _map_over_dds(tmp_path, "trusted", "gravity_align:=false")
+    meta, g = run["meta"], run["meta"]["gravity"]
     assert g["mode"] == "tf" and not g["applied"] and np.allclose(meta["gravity_alignment"], np.eye(4))
     assert g["estimate"]["angle_from_z_deg"] == pytest.approx(_angle(TILT[:3, :3] @ Z, Z), abs=2.0)
     assert "the fixed frame's up is" in g["note"] and "provisional" not in g["note"], g
-    assert "the fixed frame's up is" in log and statuses[-1]["frame"] == "map"
+    assert "the fixed frame's up is" in run["log"] and run["statuses"][-1]["frame"] == "map"
+    assert ("map", "map_gravity") not in run["statics"] and run["entities"][-1].header.frame_id == "map"
