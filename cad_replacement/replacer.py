@@ -30,6 +30,7 @@ import numpy as np
 import trimesh
 
 from cad_replacement.cad.model import CadModel, Link, bounding_box_features
+from cad_replacement.collision import observed_collisions
 from cad_replacement.geometry_cache import GeometryCache, library_store
 from cad_replacement.layout_models import MIN_LAYOUT_THICKNESS, box_model
 from cad_replacement.observation import (
@@ -205,8 +206,11 @@ def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: 
     pose = node.box.bottom_pose()
     mesh = entity.mesh().copy()
     mesh.apply_transform(np.linalg.inv(pose))
-    model = CadModel(node.class_name, f"observed_{node.id}", (Link("body", mesh, OBSERVED_RGBA),), (),
-                     bounding_box_features(mesh), source="observed")
+    # collides as its hull (``observed_collisions``): convex decomposition of a partial scan is slow and
+    # meaningless, and would run again at every map update
+    link = Link("body", mesh, OBSERVED_RGBA, collisions=lambda: observed_collisions(mesh))
+    model = CadModel(node.class_name, f"observed_{node.id}", (link,), (), bounding_box_features(mesh),
+                     source="observed")
     return PlacedObject(node.name, node.class_name, model, pose, parent=parent, support=support,
                         movable=node.movable, entity_id=node.id, cad_id="observed")
 

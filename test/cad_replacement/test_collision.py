@@ -156,3 +156,31 @@ def test_convex_pieces_of_a_concave_mesh_are_cached_and_have_a_fallback(tmp_path
                                     trimesh.creation.box(extents=(1, 1, 1)).apply_translation((3, 0, 0))])
     assert len(convex_pieces(two, tmp_path, use_coacd=False)) == 2
     assert len(convex_pieces(trimesh.creation.box(extents=(1, 2, 3)), tmp_path)) == 1
+
+
+def test_an_observed_scan_collides_as_its_hull_without_convex_decomposition():
+    """A scanned object with no CAD model: a partial, open surface that changes with every map update.
+    CoACD took 18-48 s per small real scan (20-49 pieces); its hull is one shape, at once."""
+    import time
+
+    from cad_replacement.collision import OBSERVED_MIN_THICKNESS, observed_collisions, shapes_volume
+
+    cap = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    cap.update_faces(cap.triangles_center[:, 1] < 0.0)  # the camera-side half of a 10 cm ball: open
+    cap.remove_unreferenced_vertices()
+    assert not cap.is_watertight
+    t0 = time.process_time()
+    shapes = observed_collisions(cap)
+    assert time.process_time() - t0 < 0.5
+    assert len(shapes) == 1 and shapes[0].kind == "mesh"
+    assert shapes_volume(shapes) == pytest.approx(cap.convex_hull.volume, rel=1e-6)
+    # a scan of one flat face: its box, given a thickness
+    flat = trimesh.Trimesh([[0, 0, 0], [0.2, 0, 0], [0.2, 0.1, 0], [0, 0.1, 0]], [[0, 1, 2], [0, 2, 3]])
+    (box,) = observed_collisions(flat)
+    assert box.kind == "box" and np.allclose(box.size, [0.2, 0.1, OBSERVED_MIN_THICKNESS])
+    # a large scan of two separate parts (1.5 m apart): one hull per part, not one spanning the gap
+    far = cap.copy()
+    far.apply_translation([1.5, 0.0, 0.0])
+    two = trimesh.util.concatenate([cap, far])
+    assert len(observed_collisions(two)) == 2
+    assert observed_collisions(trimesh.Trimesh()) == ()
