@@ -35,7 +35,6 @@ from scene_graph.geometric_layout import (
     faces_on_layout,
     give_up_layout_planes,
     layout_from_geometry,
-    planes_of_layout,
 )
 from scene_graph.joints import SupportJointTable, load_support_joints
 from scene_graph.layout import _faces, split_layout, sub_entity
@@ -276,9 +275,13 @@ class ContactGraphBuilder:
         base = u if u is not None else pieces[0]
         surface = concat_entities(base, pieces if u is not None else pieces[1:])
         derived = set(self._derived.values())
-        context = [c.nodes[0].entity for i, c in self._cache.items() if i not in derived and c.nodes]
+        # the things as they were before giving up their faces in the previous planes: the walls found
+        # do not depend on the order of updates (a build from scratch sees them so too)
+        context = [self._untrimmed.get(i, c.nodes[0].entity) for i, c in self._cache.items()
+                   if i not in derived and c.nodes]
+        planes: list[LayoutPlane] = []
         with single_blas_thread():
-            found = layout_from_geometry(surface, context, gl, self.cfg.layout)
+            found = layout_from_geometry(surface, context, gl, self.cfg.layout, planes)
         self._layout_revision += 1
         table = self.cfg.class_table
         rebuilt = []
@@ -298,8 +301,6 @@ class ContactGraphBuilder:
                 rebuilt.append(eid)
         self.layout_info = {role: {"id": self._derived[role], "faces": len(found[role].faces)}
                             for role in self._derived}
-        with single_blas_thread():
-            planes = planes_of_layout(found, self.cfg.layout, gl.wall_strip_min_area)
         rebuilt += self._apply_planes(planes)
         if found:
             log.info("layout from geometry: %s", ", ".join(f"{r} ({v['faces']} faces)"

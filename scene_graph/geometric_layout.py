@@ -44,6 +44,8 @@ from scene_graph.layout import HORIZONTAL_NZ, _faces, sub_entity, wall_parts
 
 log = logging.getLogger(__name__)
 
+#: Up in the gravity-aligned map frame.
+Z_UP = np.array([0.0, 0.0, 1.0])
 #: Bin of the height histogram (m).
 HEIGHT_BIN = 0.02
 
@@ -158,11 +160,23 @@ def give_up_layout_planes(entity: Entity, max_size_m: float,
     return kept, given
 
 
+@dataclass(frozen=True)
+class LayoutPlane:
+    """A derived floor / ceiling (horizontal, at ``offset`` = height) or wall part (``normal`` horizontal,
+    ``offset`` = centroid . normal, spanning ``span`` along the horizontal in-plane direction)."""
+
+    role: str
+    normal: NDArray
+    offset: float
+    span: tuple[float, float] = (-np.inf, np.inf)
+
+
 def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricLayoutConfig,
-                         layout: LayoutConfig) -> dict[str, Entity]:
+                         layout: LayoutConfig, planes: list[LayoutPlane] | None = None) -> dict[str, Entity]:
     """Floor / wall / ceiling entities (role -> entity with ``surface``'s faces; ids and names are the
     caller's) found in the unlabelled ``surface``; ``context``: every other mesh of the map (the
-    boundary test of walls)."""
+    boundary test of walls). ``planes``, when given, receives the plane of the floor, the ceiling and
+    each wall part (for ``faces_on_layout``)."""
     if not surface.has_faces:
         return {}
     centroid, normal, area = _faces(surface)
@@ -179,6 +193,9 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
         # every face within the band (both faces of a slab and its rim, the foot of a wall)
         fmask = np.all(np.abs(tri_z - z_floor) <= cfg.thickness, axis=1)
         out["floor"] = sub_entity(surface, fmask)
+        if planes is not None:
+            z_plane = _weighted_median(centroid[flat & fmask, 2], area[flat & fmask], z_floor)
+            planes.append(LayoutPlane("floor", Z_UP, z_plane))
         used |= fmask
         high = [(h, a) for h, a in big if h >= z_floor + cfg.ceiling_min_height
                 and a >= max(cfg.ceiling_min_area, cfg.ceiling_min_floor_share * floor_area)]
@@ -187,6 +204,9 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
             cmask = ~used & np.all(np.abs(tri_z - z_ceil) <= cfg.thickness, axis=1)
             if cmask.any():
                 out["ceiling"] = sub_entity(surface, cmask)
+                if planes is not None:
+                    planes.append(LayoutPlane("ceiling", Z_UP, _weighted_median(centroid[flat & cmask, 2],
+                                                                                area[flat & cmask], z_ceil)))
                 used |= cmask
     rest_idx = np.flatnonzero(~used)
     if len(rest_idx):
@@ -219,47 +239,12 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
             if beyond > cfg.wall_outside_share * float(ctx_a.sum()):
                 continue
             keep |= m
+            if planes is not None:
+                t = rest.vertices[np.unique(rest.faces[vert])] @ np.cross(Z_UP, u)
+                offset = _weighted_median(rc[vert] @ u, ra[vert], s0)  # robust to clutter on the wall's band
+                planes.append(LayoutPlane("wall", u, offset, (float(t.min()), float(t.max()))))
         if keep.any():
             out["wall"] = sub_entity(rest, keep)
-    return out
-
-
-@dataclass(frozen=True)
-class LayoutPlane:
-    """A derived floor / ceiling (horizontal, at ``offset`` = height) or wall part (``normal`` horizontal,
-    ``offset`` = centroid . normal, spanning ``span`` along the horizontal in-plane direction)."""
-
-    role: str
-    normal: NDArray
-    offset: float
-    span: tuple[float, float] = (-np.inf, np.inf)
-
-
-def planes_of_layout(found: dict[str, Entity], layout: LayoutConfig, wall_min_area: float) -> list[LayoutPlane]:
-    """The planes of ``layout_from_geometry``'s floor, ceiling and wall parts of at least ``wall_min_area``
-    (m^2; smaller pieces of the wall entity are its clutter, not planes) as area-weighted medians."""
-    out: list[LayoutPlane] = []
-    z_up = np.array([0.0, 0.0, 1.0])
-    for role in ("floor", "ceiling"):
-        e = found.get(role)
-        if e is None or not e.has_faces:
-            continue
-        c, n, a = _faces(e)
-        flat = (np.abs(n[:, 2]) >= HORIZONTAL_NZ) & (a > 0)
-        if flat.any():
-            out.append(LayoutPlane(role, z_up, _weighted_median(c[flat, 2], a[flat])))
-    wall = found.get("wall")
-    if wall is not None and wall.has_faces:
-        masks, _dropped = wall_parts(wall, replace(layout, min_area=wall_min_area, min_length=0.0))
-        c, n, a = _faces(wall)
-        for m in masks:
-            vert = m & (np.abs(n[:, 2]) < layout.vertical_max_nz) & (a > 0)
-            if not vert.any():
-                continue
-            u = _wall_normal(n[vert], a[vert])
-            along = np.cross(z_up, u)
-            t = wall.vertices[np.unique(wall.faces[vert])] @ along
-            out.append(LayoutPlane("wall", u, _weighted_median(c[vert] @ u, a[vert]), (float(t.min()), float(t.max()))))
     return out
 
 
@@ -272,17 +257,19 @@ def faces_on_layout(entity: Entity, planes: list[LayoutPlane], band: float, max_
     c, n, a = _faces(entity)
     cos = float(np.cos(np.radians(max_angle_deg)))
     on = np.zeros(len(a), bool)
-    z_up = np.array([0.0, 0.0, 1.0])
     for p in planes:
         hit = (np.abs(n @ p.normal) >= cos) & (np.abs(c @ p.normal - p.offset) <= band) & (a > 0)
         if p.role == "wall":
-            t = c @ np.cross(z_up, p.normal)
+            t = c @ np.cross(Z_UP, p.normal)
             hit &= (t >= p.span[0] - margin) & (t <= p.span[1] + margin)
         on |= hit
     return on
 
 
-def _weighted_median(values: NDArray, weights: NDArray) -> float:
+def _weighted_median(values: NDArray, weights: NDArray, default: float) -> float:
+    """Area-weighted median (``default`` when there is nothing to weigh)."""
+    if len(values) == 0 or float(weights.sum()) <= 0.0:
+        return float(default)
     order = np.argsort(values)
     cum = np.cumsum(weights[order])
     return float(values[order][int(np.searchsorted(cum, 0.5 * cum[-1]))])
