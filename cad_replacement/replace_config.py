@@ -126,6 +126,14 @@ class CadReplacementConfig:
     #: Random seed of every subsample (deterministic results).
     seed: int = 0
 
+    # ------------------------------------------------------------------ execution
+    #: Processes replacing objects in parallel (``workers``): 0 = one per usable CPU (at most 4),
+    #: 1 = in this process. Objects are independent until the physical check; results are identical.
+    workers: int = 0
+    #: A scene (or update) with fewer objects to (re)match than this stays in-process while no
+    #: worker runs yet: starting the workers costs about a second, a small update far less.
+    parallel_min_objects: int = 4
+
     def __post_init__(self) -> None:
         if self.method not in ("ours", "paper"):
             raise ValueError(f"method must be 'ours' or 'paper', got {self.method!r}")
@@ -134,6 +142,8 @@ class CadReplacementConfig:
                 raise ValueError(f"{name} must be >= 1")
         if not 0.0 < self.min_scale < 1.0 < self.max_scale:
             raise ValueError("need 0 < min_scale < 1 < max_scale")
+        if self.workers < 0:
+            raise ValueError("workers must be >= 0 (0: one per usable CPU, 1: in-process)")
         if self.robust_scale <= 0.0:
             raise ValueError("robust_scale must be positive")
 

@@ -23,6 +23,7 @@ import hashlib
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,6 +44,7 @@ from cad_replacement.observation import (
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replace_object import CadSource, ObjectReplacement, replace_object
 from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
+from cad_replacement.workers import ReplaceWorkers, resolve_workers
 from recon_core.classes import ClassTable, UnknownClassError, load_class_table
 from recon_core.contact_graph import ContactGraph, GraphNode, SupportEdge
 from recon_core.entity import Entity
@@ -101,6 +103,16 @@ class _Cached:
     key: tuple[Any, ...]
     replacement: ObjectReplacement | None
     record: ReplacementRecord
+
+
+@dataclass
+class _Job:
+    """A node to (re)match: its cache key and observation, or why it has none."""
+
+    node: GraphNode
+    key: tuple[Any, ...]
+    obs: ObjectObservation | None
+    failure: ObservationError | None
 
 
 #: Largest gap (m) between a supported object's observed bottom and its supporting plane that is
@@ -228,7 +240,10 @@ class CadReplacer:
     """Contact graph + node entities -> ``ReplacedScene``; incremental across calls."""
 
     def __init__(self, library: CadSource, config: CadReplacementConfig | None = None,
-                 class_table: ClassTable | None = None, physical_check: PhysicalCheck | None = None) -> None:
+                 class_table: ClassTable | None = None, physical_check: PhysicalCheck | None = None,
+                 workers: ReplaceWorkers | None = None) -> None:
+        """``workers``: a pool to share with other replacers of the same library (a node that starts
+        over keeps its warm workers); by default the replacer starts its own per ``config.workers``."""
         self.library = library
         self.config = config or CadReplacementConfig()
         self.class_table = class_table or load_class_table()
@@ -236,6 +251,11 @@ class CadReplacer:
         self.cache = GeometryCache(library.model, samples=self.config.ae_model_samples,
                                    store=library_store(library))
         self._results: dict[int, _Cached] = {}
+        self._owns_workers = workers is None
+        if workers is None:
+            n_workers = resolve_workers(self.config.workers)
+            workers = ReplaceWorkers(library, n_workers) if n_workers > 1 else None
+        self._workers = workers
 
     def _max_size(self, class_name: str) -> float | None:
         """The class table's largest extent of a class (None: unknown class or not given)."""
@@ -272,8 +292,9 @@ class CadReplacer:
         return ObjectObservation(node.id, node.name, node.class_name, points, box=box, normals=normals,
                                  support_z=support_z, front_hint=front, mesh=mesh)
 
-    def _replace_node(self, node: GraphNode, entity: Entity, graph: ContactGraph, walls: list[Plane],
-                      obstacles: list[GravityBox]) -> _Cached:
+    def _node_job(self, node: GraphNode, entity: Entity, graph: ContactGraph, walls: list[Plane],
+                  obstacles: list[GravityBox]) -> _Cached | _Job:
+        """The node's cached result when nothing it depends on changed, else the job replacing it."""
         edge = graph.supports.get(node.id)
         box_key = None if node.box is None else tuple(
             round(float(v), 4) for v in (*node.box.center, *node.box.size, node.box.yaw))
@@ -292,13 +313,21 @@ class CadReplacer:
         if cached is not None and cached.key == key:
             cached.record.reused = True
             return cached
+        return _Job(node, key, obs, failure)
+
+    def _finish(self, job: _Job, outcome: ObjectReplacement | BaseException) -> _Cached:
+        """Record a job's outcome (a replacement, or the ``ObservationError`` that stopped it)."""
+        node = job.node
         record = ReplacementRecord(node.id, node.name, node.class_name, "cad")
         replacement: ObjectReplacement | None = None
-        try:
-            if obs is None:
-                raise failure or ObservationError(f"{node.name!r}: no observation")
-            replacement = replace_object(obs, self.library, self.config, cache=self.cache,
-                                         class_table=self.class_table)
+        if isinstance(outcome, ObservationError):
+            record.message = f"not matched: {outcome}"
+        elif isinstance(outcome, BaseException):
+            raise outcome
+        else:
+            replacement = outcome
+            if replacement.model is None and replacement.chosen is not None:  # came from a worker
+                replacement.model = self.cache.get(replacement.chosen.match.entry).model
             record.timings = dict(replacement.timings)
             record.message = replacement.message
             record.candidates = [
@@ -306,11 +335,57 @@ class CadReplacer:
                  "alignment_error": c.ae.ae, "score": c.score, "stage": c.stage, "scale": c.scale.tolist(),
                  "yaw": c.yaw}
                 for c in replacement.candidates]
-        except ObservationError as exc:
-            record.message = f"not matched: {exc}"
-        result = _Cached(key, replacement, record)
+        result = _Cached(job.key, replacement, record)
         self._results[node.id] = result
         return result
+
+    def _replace_here(self, obs: ObjectObservation) -> ObjectReplacement | BaseException:
+        try:
+            return replace_object(obs, self.library, self.config, cache=self.cache, class_table=self.class_table)
+        except ObservationError as exc:
+            return exc
+
+    def _replace_nodes(self, graph: ContactGraph, entities: Mapping[int, Entity], walls: list[Plane],
+                       obstacles: list[GravityBox]) -> dict[int, _Cached]:
+        """Every object node's result: reused when nothing it depends on changed, else (re)matched.
+
+        With workers, each job is sent off as soon as its observation is built, largest objects first
+        (they take longest: articulated furniture), so the workers stay evenly busy while this process
+        builds the rest. Workers start only for a scene with ``parallel_min_objects`` objects; once they
+        run (warm), updates use them too. A broken pool falls back to in-process replacement."""
+        todo = [n for nid, n in graph.nodes.items() if nid != graph.root_id and n.category != LAYOUT
+                and entities.get(nid) is not None and not entities[nid].is_empty]
+        todo.sort(key=lambda n: -(n.box.volume if n.box is not None else 0.0))
+        workers = self._workers
+        if workers is not None and not workers.started and len(todo) < self.config.parallel_min_objects:
+            workers = None
+        done: dict[int, _Cached] = {}
+        pending: list[tuple[_Job, Future[ObjectReplacement] | None]] = []
+        for node in todo:
+            item = self._node_job(node, entities[node.id], graph, walls, obstacles)
+            if isinstance(item, _Cached):
+                done[node.id] = item
+            elif item.obs is None:
+                done[node.id] = self._finish(item, item.failure or ObservationError(f"{node.name!r}: no observation"))
+            else:
+                future = workers.submit(item.obs, self.config, self.class_table) if workers is not None else None
+                pending.append((item, future))
+        for job, future in pending:
+            assert job.obs is not None
+            outcome = workers.result(future) if workers is not None and future is not None else None
+            done[job.node.id] = self._finish(job, outcome if outcome is not None else self._replace_here(job.obs))
+        return done
+
+    def close(self) -> None:
+        """Stop the worker processes this replacer started, if any (a later ``replace`` starts them again)."""
+        if self._workers is not None and self._owns_workers:
+            self._workers.close()
+
+    def __enter__(self) -> CadReplacer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     # ------------------------------------------------------------------ scene
     def replace(self, graph: ContactGraph, entities: Mapping[int, Entity], name: str = "") -> ReplacementResult:
@@ -334,6 +409,8 @@ class CadReplacer:
         names = {nid: n.name for nid, n in graph.nodes.items()}
         placed: set[str] = set()
         room_center = _room_center(graph)
+        done = self._replace_nodes(graph, entities, walls, obstacles)
+        # Then place every node, parents first.
         for nid, _depth in graph.walk():
             if nid == graph.root_id:
                 continue
@@ -353,7 +430,7 @@ class CadReplacer:
                     records.append(ReplacementRecord(nid, node.name, node.class_name, "skipped",
                                                      message="no geometry for this node"))
                     continue
-                cached = self._replace_node(node, entity, graph, walls, obstacles)
+                cached = done[nid]
                 record = cached.record
                 obj = self._placed(node, cached.replacement, parent, support)
                 if obj is None:

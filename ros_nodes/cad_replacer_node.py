@@ -56,6 +56,7 @@ from cad_replacement.physical_check import PhysicalCheck
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replacer import CadReplacer
 from cad_replacement.scene_model import ReplacedScene
+from cad_replacement.workers import ReplaceWorkers, resolve_workers
 from recon_core.config import Settings, setting
 from recon_core.contact_graph import ContactGraph
 from recon_core.entity import Entity
@@ -105,8 +106,12 @@ class CadReplacerNode(Node):
         self.settings = declare_config(self, CadReplacerNodeConfig)
         replace_cfg = declare_config(self, CadReplacementConfig, prefix="replace.")
         library = CadLibrary(root=self.settings.cad_dir or None, seeds_per_class=self.settings.seeds_per_class)
+        # One worker pool for the node's life: a replacer made afresh (final replacement) keeps the warm workers.
+        n_workers = resolve_workers(replace_cfg.workers)
+        self._workers = ReplaceWorkers(library, n_workers) if n_workers > 1 else None
         self._make_replacer = lambda: CadReplacer(library, replace_cfg,
-                                                  physical_check=PhysicalCheck(method=replace_cfg.method))
+                                                  physical_check=PhysicalCheck(method=replace_cfg.method),
+                                                  workers=self._workers)
         self.replacer = self._make_replacer()
         self._incremental = False
         self._last_input = time.monotonic()
@@ -235,6 +240,11 @@ class CadReplacerNode(Node):
         self.get_logger().info(f"scene revision {revision}: {len(result.scene)} objects, {result.rematched} "
                                f"re-matched in {time.perf_counter() - t0:.2f} s"
                                f"{' (from scratch)' if final else ''}; {self.counters}")
+
+    def on_shutdown(self) -> None:
+        """Stop the CAD worker processes (``runner.shutdown_node`` calls this before destroying the node)."""
+        if self._workers is not None:
+            self._workers.close()
 
     def health(self) -> diag.Health:
         """What /diagnostics reports: the node's counters, the input rate, the median replacement time."""
