@@ -376,6 +376,11 @@ class CadReplacer:
             done[job.node.id] = self._finish(job, outcome if outcome is not None else self._replace_here(job.obs))
         return done
 
+    @property
+    def workers_running(self) -> bool:
+        """Whether objects are being replaced in worker processes (a pool started and not failed)."""
+        return self._workers is not None and self._workers.started
+
     def close(self) -> None:
         """Stop the worker processes this replacer started, if any (a later ``replace`` starts them again)."""
         if self._workers is not None and self._owns_workers:

@@ -177,6 +177,7 @@ def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = N
     # skip: the same graph again, nothing changed -> no CAD work
     t4 = time.perf_counter()
     again = replacer.replace(graph, nodes)
+    replacer.close()
     unchanged_s = time.perf_counter() - t4
 
     c5, t5 = time.process_time(), time.perf_counter()

@@ -67,9 +67,9 @@ def run(args: argparse.Namespace) -> int:
     check = PhysicalCheck(method=args.method)
     cad_cfg = build_config(CadReplacementConfig, {},
                            preset_overrides(preset_from_args(args), "cad", {"method": args.method}))
-    replacer = CadReplacer(library, cad_cfg, physical_check=check)
     t0 = time.perf_counter()
-    result = replacer.replace(graph, entities)
+    with CadReplacer(library, cad_cfg, physical_check=check) as replacer:  # stops its worker processes
+        result = replacer.replace(graph, entities)
     out = Path(args.out)
     exported = export_scene(result.scene, out)
     urdf = exported.urdf

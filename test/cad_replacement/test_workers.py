@@ -1,0 +1,96 @@
+"""Objects replaced in worker processes: the same scene as in-process, and a dead pool costs nothing."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from cad_replacement.cad.library import CadLibrary
+from cad_replacement.replace_config import CadReplacementConfig
+from cad_replacement.replacer import CadReplacer
+from cad_replacement.workers import ReplaceWorkers, resolve_workers, usable_cpus
+from scene_graph.builder import ContactGraphBuilder
+from scene_graph.config import load_scene_graph_config
+from scene_recon.synthetic.scene import build_scene, entities_from_ground_truth
+
+
+@pytest.fixture(scope="module")
+def room():
+    builder = ContactGraphBuilder(load_scene_graph_config())
+    builder.update(entities_from_ground_truth(build_scene(8, 5)))
+    return builder.build(name="room"), builder.node_entities(), CadLibrary(seeds_per_class=3)
+
+
+def _summary(result):
+    return {o.name: (o.cad_id, o.pose, o.scale, o.joint_values) for o in result.scene}
+
+
+def _assert_same(a, b):
+    assert set(a) == set(b)
+    for name, (cad_id, pose, scale, joints) in a.items():
+        assert b[name][0] == cad_id, name
+        np.testing.assert_allclose(b[name][1], pose, atol=1e-9, err_msg=name)
+        np.testing.assert_allclose(b[name][2], scale, atol=1e-9, err_msg=name)
+        assert b[name][3] == pytest.approx(joints, abs=1e-9), name
+
+
+@pytest.fixture(scope="module")
+def in_process(room):
+    graph, nodes, library = room
+    replacer = CadReplacer(library, CadReplacementConfig(workers=1))
+    result = replacer.replace(graph, nodes)
+    assert not replacer.workers_running
+    return _summary(result)
+
+
+def test_workers_place_every_object_exactly_as_in_process(room, in_process):
+    graph, nodes, library = room
+    things = sum(1 for n in graph.nodes.values() if n.category != "layout" and n.id in nodes)
+    assert things >= CadReplacementConfig().parallel_min_objects  # the scene is big enough to use them
+    with CadReplacer(library, CadReplacementConfig(workers=2)) as replacer:
+        result = replacer.replace(graph, nodes)
+        assert replacer.workers_running
+        _assert_same(in_process, _summary(result))
+        assert all(r.candidates for r in result.records if r.kind == "cad")
+        # an update of one entity goes to the (warm) workers too, and re-matches only that entity
+        target = next(n for n in graph.nodes.values() if n.category != "layout" and n.id in nodes)
+        bumped = dict(nodes)
+        bumped[target.id] = dataclasses.replace(nodes[target.id], revision=nodes[target.id].revision + 1)
+        again = replacer.replace(graph, bumped)
+        assert again.rematched == 1
+        _assert_same(in_process, _summary(again))
+    assert not replacer.workers_running  # closed by the context manager
+
+
+def test_a_killed_worker_pool_falls_back_to_in_process_replacement(room, in_process, caplog):
+    graph, nodes, library = room
+    pool = ReplaceWorkers(library, 2)
+    try:
+        CadReplacer(library, CadReplacementConfig(workers=2), workers=pool).replace(graph, nodes)
+        assert pool.started
+        for proc in list(pool._pool._processes.values()):  # type: ignore[union-attr]
+            os.kill(proc.pid, signal.SIGKILL)
+        replacer = CadReplacer(library, CadReplacementConfig(workers=2), workers=pool)  # nothing cached
+        with caplog.at_level(logging.WARNING, logger="cad_replacement.workers"):
+            result = replacer.replace(graph, nodes)
+        _assert_same(in_process, _summary(result))
+        assert pool.failed and not pool.started
+        assert any("replacing in this process" in r.getMessage() for r in caplog.records)
+    finally:
+        pool.close()
+
+
+def test_small_scenes_stay_in_process_and_the_worker_count_is_checked(room):
+    graph, nodes, library = room
+    config = CadReplacementConfig(workers=2, parallel_min_objects=10_000)
+    replacer = CadReplacer(library, config)
+    replacer.replace(graph, nodes)
+    assert not replacer.workers_running
+    assert resolve_workers(0) == min(usable_cpus(), 4) and resolve_workers(3) == 3
+    with pytest.raises(ValueError, match="workers"):
+        CadReplacementConfig(workers=-1)
