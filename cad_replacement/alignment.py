@@ -965,7 +965,7 @@ class AlignmentProblem:
             return x0, float(0.5 * np.sum(self.residuals(x0) ** 2)), 1
         sol = least_squares(
             self.residuals, x0, jac=self.jacobian, method="lm", max_nfev=max(int(max_nfev), len(x0) + 1),
-            x_scale="jac",
+            x_scale="jac", ftol=self.cfg.fit_ftol,
         )
         x = sol.x.copy()
         k = 1 if self.uniform else 3
