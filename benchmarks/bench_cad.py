@@ -39,7 +39,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import write_result
-from cad_replacement.cad.library import CadLibrary
+from cad_replacement.cad.library import DEFAULT_SEEDS_PER_CLASS, CadLibrary
 from cad_replacement.export import export_scene
 from cad_replacement.physical_check import PhysicalCheck
 from cad_replacement.replace_config import CadReplacementConfig
@@ -108,7 +108,8 @@ def run_setting(graph, nodes, gt: GroundTruthScene, library: CadLibrary, method:
             "update_s": update_s, "update_cpu_s": update_cpu_s, "update_rematched": rematched,
             "per_object_s": replace_s / max(objects, 1), "physical_check_s": result.timings["physical_check_s"],
             "conflicts_before": len(check.last_report.conflicts_before),
-            "conflicts_after": len(check.last_report.conflicts_after), **figures}
+            "conflicts_after": len(check.last_report.conflicts_after),
+            "support_switches": {k: list(v) for k, v in check.last_report.support_switches.items()}, **figures}
 
 
 def _overrides(pairs: list[str]) -> dict[str, Any]:
@@ -160,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--maps", type=Path, help="folder of mapped scenes <DIR>/<scene>/entities.json to reuse")
     parser.add_argument("--no-paper", action="store_true", help="skip the paper's method (the slow one)")
     parser.add_argument("--no-mapped", action="store_true", help="skip the mapped-entities setting")
+    parser.add_argument("--seeds-per-class", type=int, default=DEFAULT_SEEDS_PER_CLASS,
+                        help="procedural models per class of the unseen library (default %(default)s)")
     parser.add_argument("--only", nargs="+", metavar="SETTING",
                         help="run only these settings (e.g. gt/ours/unseen mapped/ours/unseen)")
     parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
@@ -175,7 +178,8 @@ def main(argv: list[str] | None = None) -> int:
         for e in gt.entities:
             if e.model_seed is not None:
                 seeds.setdefault(e.class_name, []).append(int(e.model_seed))
-        libraries = {"in-library": SeededLibrary(extra_seeds=seeds), "unseen": CadLibrary()}
+        libraries = {"in-library": SeededLibrary(extra_seeds=seeds),
+                     "unseen": CadLibrary(seeds_per_class=args.seeds_per_class)}
         n_workers = resolve_workers(int(overrides.get("workers", CadReplacementConfig().workers)))
         pools = {k: ReplaceWorkers(lib, n_workers) if n_workers > 1 else None for k, lib in libraries.items()}
         graph, nodes = graph_of(entities_from_ground_truth(gt), name)

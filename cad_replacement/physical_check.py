@@ -10,7 +10,10 @@ Each object arrives with its ranked CAD candidates (best alignment first). The c
 3. conflicts are resolved over the candidate lists by min-conflicts: the object in the worst conflict
    that still has untried candidates switches to the next one when that lowers its penetration
    (movable, smaller objects yield before furniture), at most ``max_rounds`` rounds (the paper: 10);
-4. a final snap rests every supported object on its support (``rest_on``).
+4. supports that hold their objects at the wrong height (a shelf model whose boards are not where
+   the books were seen lying) switch to a ranked alternative that offers the observed heights
+   (``fit_supports``: Eq. (1)'s support relation kept in height, not only in name);
+5. a final snap rests every supported object on its support (``rest_on``).
 
 The paper's variant (``method="paper"``) tests FCL-style visual-mesh hulls: we keep the same loop but
 measure penetration against the links' convex hulls, which flags containment (a cup inside a cabinet)
@@ -35,6 +38,12 @@ from recon_core.geometry.polygon import point_segment_distances, points_in_polyg
 MAX_PENETRATION_M = 0.01
 #: Rounds of min-conflicts (the paper: 10).
 MAX_ROUNDS = 10
+#: A support whose surfaces are farther than this (m) from where a child was seen resting makes the
+#: snap move the child: the support's candidates are searched for one that holds it where it was.
+SUPPORT_MISMATCH_M = 0.02
+#: Alternatives of a support tried, and how much worse (score ratio) than the choice they may fit.
+SUPPORT_ALTERNATIVES = 3
+SUPPORT_SCORE_RATIO = 1.5
 #: Clearance (m) kept between a footprint and the outline of an enclosed support surface ...
 CONTAINED_MARGIN = 0.005
 #: ... and the largest horizontal move (m) made to get it there: farther, the fit (or the graph) is
@@ -60,6 +69,9 @@ class CheckReport:
     wall_pushes: dict[str, float] = field(default_factory=dict)
     #: horizontal distance (m) each movable object was slid away from a neighbour on its surface
     separations: dict[str, float] = field(default_factory=dict)
+    #: supports switched to an alternative holding their objects at the observed heights:
+    #: name -> (height mismatch before, after) in m
+    support_switches: dict[str, tuple[float, float]] = field(default_factory=dict)
     rounds: int = 0
     seconds: float = 0.0
 
@@ -149,6 +161,9 @@ class PhysicalCheck:
             conflicts = self._conflicts(scene, solids, [mover.name, other.name]) + [
                 c for c in conflicts if mover.name not in c[:2] and other.name not in c[:2]]
         result = ReplacedScene(scene.name, [objects[o.name] for o in scene], scene.frame_id, scene.revision)
+        if self.method == "ours":
+            report.support_switches = self._fit_supports(result, objects, solids, alternatives, hulls)
+            result = ReplacedScene(scene.name, [objects[o.name] for o in scene], scene.frame_id, scene.revision)
         report.wall_pushes = push_out_of_walls(result, solids, self.max_penetration, hulls)
         report.support_gaps_before = snap_to_supports(result)
         solids = {o.name: ObjectSolids(o, hulls) for o in result}
@@ -156,6 +171,70 @@ class PhysicalCheck:
         report.conflicts_after = self._conflicts(result, solids)
         report.seconds = time.perf_counter() - t0
         return result
+
+
+    def _fit_supports(self, scene: ReplacedScene, objects: dict[str, PlacedObject], solids: dict[str, ObjectSolids],
+                      alternatives: Mapping[str, Sequence[PlacedObject]], hulls: bool
+                      ) -> dict[str, tuple[float, float]]:
+        """Switch supports whose surfaces miss their children's observed heights (``support_mismatch``)
+        to the first of their ``SUPPORT_ALTERNATIVES`` alternatives (scored within
+        ``SUPPORT_SCORE_RATIO`` of the choice, when the alternatives carry scores) that holds every
+        child within ``SUPPORT_MISMATCH_M`` and collides with nothing but its children. ``objects`` and
+        ``solids`` are updated; returns name -> (mismatch before, after)."""
+        switched: dict[str, tuple[float, float]] = {}
+        children: dict[str, list[PlacedObject]] = {}
+        for o in scene:
+            if o.parent in objects:
+                children.setdefault(o.parent, []).append(o)
+        for name, kids in sorted(children.items()):
+            parent = objects[name]
+            alts = alternatives.get(name, [])
+            if parent.model.source == "box" or not alts:
+                continue
+            before = support_mismatch(parent, kids)
+            if before <= SUPPORT_MISMATCH_M:
+                continue
+            scores, best = getattr(alts, "scores", None), getattr(alts, "chosen_score", None)
+            kid_names = {k.name for k in kids}
+            for i in range(min(len(alts), SUPPORT_ALTERNATIVES)):
+                if scores is not None and best is not None and scores[i] > SUPPORT_SCORE_RATIO * best:
+                    break
+                alt = alts[i]
+                trial = PlacedObject(name, alt.class_name, alt.model, alt.pose.copy(), parent=parent.parent,
+                                     parent_link=parent.parent_link, support=parent.support, movable=parent.movable,
+                                     entity_id=parent.entity_id, joint_values=dict(alt.joint_values), scale=alt.scale,
+                                     cad_id=alt.cad_id)
+                _rest_like(trial, parent)
+                after = support_mismatch(trial, kids)
+                if after > SUPPORT_MISMATCH_M:
+                    continue
+                trial_solids = ObjectSolids(trial, hulls)
+                blocked = any(
+                    trial_solids.overlaps(solids[n]) and penetration_between(trial_solids, solids[n])
+                    > self.max_penetration * (1.5 if n == parent.parent else 1.0)
+                    for n in solids if n != name and n not in kid_names)
+                if blocked:
+                    continue
+                objects[name], solids[name] = trial, trial_solids
+                switched[name] = (before, after)
+                break
+        return switched
+
+
+def support_mismatch(parent: PlacedObject, kids: Sequence[PlacedObject]) -> float:
+    """Largest vertical distance (m) between a child's bottom and the parent surface the snap would
+    rest it on (the same choice as ``snap_to_supports``)."""
+    from cad_replacement.actions import support_spots
+
+    spots = support_spots(parent)
+    worst = 0.0
+    for kid in kids:
+        centre, _radius, height = _footprint(kid)
+        fitting = [sp for sp in spots if sp.clearance is None or sp.clearance >= 0.9 * height] or spots
+        under = [sp for sp in fitting if points_in_polygon(centre[None], sp.polygon)[0]] or fitting
+        bottom = _lowest(kid)
+        worst = max(worst, min(abs(sp.height - bottom) for sp in under))
+    return worst
 
 
 #: Largest horizontal move (m) that takes an object out of a wall: farther, the wall or the pose is
@@ -444,4 +523,4 @@ def support_gap(obj: PlacedObject, support_z: float) -> float:
 
 
 __all__ = ["MAX_PENETRATION_M", "CheckReport", "PhysicalCheck", "pair_penetrations", "posed_mesh", "snap_to_supports",
-           "support_gap"]
+           "support_gap", "support_mismatch"]

@@ -495,6 +495,10 @@ class _RankedAlternatives(Sequence[PlacedObject]):
         self._args = (replacer, node, rep, parent, support)
         self._built: dict[int, PlacedObject | None] = {}
         self._len = max(len(rep.candidates) - 1, 0)
+        #: selection scores (lower is better) of the choice and of each alternative: how much worse a
+        #: backup fits, for checks that trade fit for consistency (``physical_check.fit_supports``)
+        self.chosen_score = float(rep.candidates[0].score) if rep.candidates else float("inf")
+        self.scores = [float(c.score) for c in rep.candidates[1:]]
 
     def __len__(self) -> int:
         return self._len

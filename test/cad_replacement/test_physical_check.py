@@ -236,3 +236,50 @@ def test_neighbours_on_one_surface_are_slid_apart_after_the_snap():
     assert after.get(frozenset(("box_1", "box_2")), 0.0) <= 0.001
     assert scene.object("box_1").pose[:3, 3].tolist() == [0.0, 0.0, top]
     assert scene.object("box_2").pose[1, 3] == pytest.approx(0.0) and scene.object("box_2").pose[0, 3] > 0.15
+
+
+class _Scored(list):
+    """Alternatives as the replacer hands them over: ranked, with their selection scores."""
+
+    def __init__(self, items, scores, chosen_score):
+        super().__init__(items)
+        self.scores, self.chosen_score = scores, chosen_score
+
+
+def _shelf_with_cup(alternative_score: float | None):
+    # shelf seed 2 has boards at 0.08/0.51/0.93 m, seed 3 at 0.05/0.34/0.62 m: a cup seen standing at
+    # 0.336 m fits seed 3 and would be lifted 17 cm onto seed 2's board by the snap
+    chosen, other = build_model("shelf", 2), build_model("shelf", 3)
+    board = min((s.height for s in other.features.support_surfaces), key=lambda h: abs(h - 0.336))
+    scene = ReplacedScene("room", [
+        PlacedObject("floor", "floor", box_model("floor", (6, 6, 0.05)), _pose(0, 0, -0.05)),
+        PlacedObject("shelf_1", "shelf", chosen, _pose(0, 0, 0), parent="floor"),
+        PlacedObject("cup_1", "cup", build_model("cup", 0), _pose(0, 0, board), parent="shelf_1",
+                     support="floating", movable=True),
+    ])
+    alt = PlacedObject("shelf_1", "shelf", other, _pose(0, 0, 0), parent="floor")
+    alts = [alt] if alternative_score is None else _Scored([alt], [alternative_score], 1.0)
+    return scene, {"shelf_1": alts}, board
+
+
+def test_a_support_without_a_surface_where_its_object_stands_switches_to_one_that_has_it():
+    scene, alternatives, board = _shelf_with_cup(None)
+    check = PhysicalCheck()
+    fixed = check(scene, alternatives)
+    assert "shelf_1" in check.last_report.support_switches
+    before, after = check.last_report.support_switches["shelf_1"]
+    assert before > 0.1 and after < 0.02
+    assert fixed.object("shelf_1").model.model_id == alternatives["shelf_1"][0].model.model_id
+    assert fixed.object("cup_1").pose[2, 3] == pytest.approx(board, abs=0.02)  # not lifted a board up
+
+
+def test_a_much_worse_fitting_support_alternative_is_not_taken_for_consistency():
+    scene, alternatives, board = _shelf_with_cup(10.0)  # 10x the choice's score
+    check = PhysicalCheck()
+    fixed = check(scene, alternatives)
+    assert check.last_report.support_switches == {}
+    assert abs(fixed.object("cup_1").pose[2, 3] - board) > 0.1  # snapped onto the chosen shelf's board
+    paper = PhysicalCheck(method="paper")
+    scene, alternatives, _board = _shelf_with_cup(None)
+    paper(scene, alternatives)
+    assert paper.last_report.support_switches == {}  # the paper's check has no such step
