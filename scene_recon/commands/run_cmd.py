@@ -36,7 +36,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="map: up of the input's world frame (auto: estimated from depth; z; a 4x4 file), "
                    "see `map --help`")
     p.add_argument("--method", choices=("ours", "paper"), default="ours", help="CAD replacement method")
-    p.add_argument("--seeds-per-class", type=int, default=10, metavar="N", help="procedural CAD models per class")
+    p.add_argument("--seeds-per-class", type=int, default=10, metavar="N",
+                   help="procedural CAD models per class (articulated classes: 3x, to cover their front layouts)")
     add_preset_option(p)
     add_data_options(p)
     p.set_defaults(func=run)

@@ -9,6 +9,7 @@ import pytest
 
 from cad_replacement.cad import CadLibrary, build_model
 from cad_replacement.cad import library as library_module
+from cad_replacement.cad.library import ARTICULATED_SEED_FACTOR
 from recon_core.classes import load_class_table
 from recon_core.errors import CadImportError
 
@@ -34,20 +35,24 @@ def test_features_are_computed_once_and_cached_on_disk(
     cache = tmp_path / "cache"
     lib = CadLibrary(root=root, cache_dir=cache, seeds_per_class=3, classes=["cabinet", "table"])
     keys = [e.key for e in lib.entries()]
-    assert len(keys) == 3 + 3 + 1 and "urdf/cabinet/ext1" in keys
-    assert len(lib.entries("cabinet")) == 4
+    # an articulated class enumerates ARTICULATED_SEED_FACTOR times the seeds (front layouts)
+    n_cab = 3 * ARTICULATED_SEED_FACTOR
+    n = n_cab + 3 + 1
+    assert lib.seeds_for("cabinet") == n_cab and lib.seeds_for("table") == 3
+    assert len(keys) == n and "urdf/cabinet/ext1" in keys
+    assert len(lib.entries("cabinet")) == n_cab + 1
     first = {e.key: lib.features(e) for e in lib.entries()}
-    assert len(calls) == 7 and lib.stats.computed == 7
+    assert len(calls) == n and lib.stats.computed == n
     files = sorted(cache.glob("*.json"))
-    assert len(files) == 7
+    assert len(files) == n
     mtimes = {p: p.stat().st_mtime_ns for p in files}
     lib.features(lib.entries()[0])
     assert lib.stats.memory_hits == 1
 
     again = CadLibrary(root=root, cache_dir=cache, seeds_per_class=3, classes=["cabinet", "table"])
     second = {e.key: again.features(e) for e in again.entries()}
-    assert len(calls) == 7  # nothing recomputed
-    assert again.stats.disk_hits == 7 and again.stats.computed == 0
+    assert len(calls) == n  # nothing recomputed
+    assert again.stats.disk_hits == n and again.stats.computed == 0
     assert {p: p.stat().st_mtime_ns for p in files} == mtimes
     for key, f in first.items():
         assert second[key].plane_array() == pytest.approx(f.plane_array())
