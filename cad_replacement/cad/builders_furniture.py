@@ -89,6 +89,10 @@ SHELF_PARAMS: ParamSpec = {
     "plinth": Uniform(0.0, 0.08),
 }
 
+#: Classes whose models carry a varying number of support levels at varying heights (what stands in
+#: them rests on one: a library needs enough of them to offer the observed heights).
+LEVELLED = frozenset({"shelf"})
+
 #: Smallest free height between bookcase levels (m); more levels than fit are dropped.
 MIN_LEVEL_PITCH = 0.18
 #: Pillow height on a bed (m).

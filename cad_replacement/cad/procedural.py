@@ -36,6 +36,9 @@ class ClassBuilder:
     params: ParamSpec
     build: Callable[[dict[str, ParamValue]], Assembly]
     articulated: bool
+    #: Models differ in functional layout, not only in size: fronts (doors, drawers, their counts) or
+    #: the number and spacing of support levels. A library needs more of them (``CadLibrary``).
+    layout_varied: bool = False
 
 
 def _registry() -> Mapping[str, ClassBuilder]:
@@ -46,7 +49,8 @@ def _registry() -> Mapping[str, ClassBuilder]:
         (builders_objects, False),
     ):
         for name, fn in module.BUILDERS.items():
-            out[name] = ClassBuilder(name, module.SPECS[name], fn, articulated)
+            varied = articulated or name in builders_furniture.LEVELLED
+            out[name] = ClassBuilder(name, module.SPECS[name], fn, articulated, varied)
     return MappingProxyType(dict(sorted(out.items())))
 
 

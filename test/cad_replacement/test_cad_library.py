@@ -9,7 +9,7 @@ import pytest
 
 from cad_replacement.cad import CadLibrary, build_model
 from cad_replacement.cad import library as library_module
-from cad_replacement.cad.library import ARTICULATED_SEED_FACTOR
+from cad_replacement.cad.library import LAYOUT_SEED_FACTOR
 from recon_core.classes import load_class_table
 from recon_core.errors import CadImportError
 
@@ -35,8 +35,8 @@ def test_features_are_computed_once_and_cached_on_disk(
     cache = tmp_path / "cache"
     lib = CadLibrary(root=root, cache_dir=cache, seeds_per_class=3, classes=["cabinet", "table"])
     keys = [e.key for e in lib.entries()]
-    # an articulated class enumerates ARTICULATED_SEED_FACTOR times the seeds (front layouts)
-    n_cab = 3 * ARTICULATED_SEED_FACTOR
+    # a class of varied layout (articulated) enumerates LAYOUT_SEED_FACTOR times the seeds (front layouts)
+    n_cab = 3 * LAYOUT_SEED_FACTOR
     n = n_cab + 3 + 1
     assert lib.seeds_for("cabinet") == n_cab and lib.seeds_for("table") == 3
     assert len(keys) == n and "urdf/cabinet/ext1" in keys
