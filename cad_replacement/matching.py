@@ -411,7 +411,7 @@ def match_candidates(
     best = sorted(heap, key=lambda it: (-it[0], it[1]))
     if not paper:
         best += _orientation_siblings(best, frame_idx, model_idx, candidates, lower, framed, model_planes, rots,
-                                      s_x_norms, s_y_norm, cfg)
+                                      s_x_norms, s_y_norm, cfg, obs.class_name)
     out = []
     for neg_err, h, d_plane, assignment in best:
         entry, feats = candidates[model_idx[h]]
@@ -434,7 +434,8 @@ def match_candidates(
     return MatchResult(out, len(rows), scored, n_obs, time.perf_counter() - t0, {"planes": t_planes})
 
 
-#: Ours: the best articulated models of the ranking keep all their upright orientations.
+#: Ours: the best articulated models of the ranking (distinct models, each in the box frame it ranks
+#: best in) keep all their upright orientations.
 SIBLING_MODELS = 6
 
 
@@ -450,6 +451,7 @@ def _orientation_siblings(
     s_x_norms: NDArray[np.float64],
     s_y_norm: NDArray[np.float64],
     cfg: CadReplacementConfig,
+    class_name: str,
 ) -> list[tuple[float, int, float, tuple[tuple[int, int], ...]]]:
     """The other upright orientations of the best few articulated models (same frame), scored.
 
@@ -459,10 +461,14 @@ def _orientation_siblings(
     orientations reach it even when the Matching Error ranks them below the top-k.
     """
     have = {int(h) for _e, h, _d, _a in best}
-    seen: list[tuple[int, int]] = []
-    for _e, h, _d, _a in best:
+    seen: list[tuple[int, int]] = []  # (frame, model) of each model's best-ranked hypothesis
+    # distinct models (one model ranked best in each box frame must not use up the slots), those of
+    # the observed class first (the detector's label is trusted; a flood of confusable models of a
+    # larger library must not crowd out the observed class's own)
+    ranked = sorted(best, key=lambda it: candidates[int(model_idx[it[1]])][0].class_name != class_name)
+    for _e, h, _d, _a in ranked:
         key = (int(frame_idx[h]), int(model_idx[h]))
-        if key not in seen and _articulated_class(candidates[key[1]][0].class_name):
+        if all(m != key[1] for _f, m in seen) and _articulated_class(candidates[key[1]][0].class_name):
             seen.append(key)
         if len(seen) >= SIBLING_MODELS:
             break
