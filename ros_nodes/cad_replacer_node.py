@@ -87,7 +87,7 @@ class CadReplacerNodeConfig(Settings):
     joint_states_topic: str = setting("joint_states", doc="JointState output")
     markers_topic: str = setting("cad_markers", doc="MarkerArray output (latched)")
     seeds_per_class: int = setting(10, min=1,
-                                   doc="procedural CAD models per class (articulated classes, shelves: 3x)")
+                                   doc="procedural CAD models per class (articulated classes, shelves: 2x)")
     cad_dir: str = setting("", doc="folder of imported CAD assets (<class>/<model>/ with a URDF); empty: none")
     output_dir: str = setting("scene_recon_data/scene", doc="where the scene's URDF and meshes are written")
     tf_period_s: float = setting(0.1, min=0.01, doc="period of /tf and joint_states (s)")

@@ -27,7 +27,7 @@ Procedural models (``procedural``):
         rigid: table, desk, chair, sofa, bed, shelf, monitor, bag, box, cup, bottle, book
 
 Database and cache (``library``):
-    CadLibrary(root=None, cache_dir=None, seeds_per_class=10, layout_seed_factor=3, classes=None,
+    CadLibrary(root=None, cache_dir=None, seeds_per_class=10, layout_seed_factor=2, classes=None,
                class_table=None)
         .entries(class_name=None) -> [CadEntry]; .features(entry) -> ModelFeatures (cached JSON);
         .model(entry) -> CadModel; .candidates(class_name) -> [(CadEntry, ModelFeatures)]

@@ -32,7 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="ours (gravity-restricted, coarse-to-fine) or the paper's method (all 24 orientations, "
                    "dense LM) for comparison (default: ours)")
     p.add_argument("--seeds-per-class", type=int, default=10, metavar="N",
-                   help="procedural CAD models per class (articulated classes and shelves: 3x; default: 10)")
+                   help="procedural CAD models per class (articulated classes and shelves: 2x; default: 10)")
     p.add_argument("--cad-dir", metavar="DIR",
                    help="folder of imported CAD assets (<class>/<model>/ with a URDF) added to the library")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")

@@ -69,7 +69,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="use_sim_time of the nodes (auto: true with --bag, the player publishing /clock)")
     p.add_argument("--method", choices=("ours", "paper"), default="ours", help="CAD replacement method")
     p.add_argument("--seeds-per-class", type=int, default=10, metavar="N",
-                   help="procedural CAD models per class (articulated classes and shelves: 3x, to cover their layouts)")
+                   help="procedural CAD models per class (articulated classes and shelves: 2x, to cover their layouts)")
     p.add_argument("--keep-running", action="store_true",
                    help="bag: after exporting the scene, keep the nodes up (for planners) until Ctrl-C")
     p.add_argument("--settle", type=float, default=3.0, metavar="S",

@@ -37,7 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "see `map --help`")
     p.add_argument("--method", choices=("ours", "paper"), default="ours", help="CAD replacement method")
     p.add_argument("--seeds-per-class", type=int, default=10, metavar="N",
-                   help="procedural CAD models per class (articulated classes and shelves: 3x, to cover their layouts)")
+                   help="procedural CAD models per class (articulated classes and shelves: 2x, to cover their layouts)")
     add_preset_option(p)
     add_data_options(p)
     p.set_defaults(func=run)
