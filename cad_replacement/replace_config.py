@@ -136,8 +136,10 @@ class CadReplacementConfig:
     #: 1 = in this process. Objects are independent until the physical check; results are identical.
     workers: int = 0
     #: A scene (or update) with fewer objects to (re)match than this stays in-process while no
-    #: worker runs yet: starting the workers costs about a second, a small update far less.
-    parallel_min_objects: int = 4
+    #: worker runs yet: starting them (a fork server importing Open3D, cold caches in each worker)
+    #: costs 1.5-2 s, about what they save on 15-18 objects (a real 10-object scene took 2.0 s
+    #: in-process, 3.7 s through fresh workers); once running they are warm and take every update.
+    parallel_min_objects: int = 12
 
     def __post_init__(self) -> None:
         if self.method not in ("ours", "paper"):

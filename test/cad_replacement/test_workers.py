@@ -51,8 +51,8 @@ def in_process(room):
 def test_workers_place_every_object_exactly_as_in_process(room, in_process):
     graph, nodes, library = room
     things = sum(1 for n in graph.nodes.values() if n.category != "layout" and n.id in nodes)
-    assert things >= CadReplacementConfig().parallel_min_objects  # the scene is big enough to use them
-    with CadReplacer(library, CadReplacementConfig(workers=2)) as replacer:
+    assert things >= 4
+    with CadReplacer(library, CadReplacementConfig(workers=2, parallel_min_objects=4)) as replacer:
         result = replacer.replace(graph, nodes)
         assert replacer.workers_running
         _assert_same(in_process, _summary(result))
@@ -71,11 +71,12 @@ def test_a_killed_worker_pool_falls_back_to_in_process_replacement(room, in_proc
     graph, nodes, library = room
     pool = ReplaceWorkers(library, 2)
     try:
-        CadReplacer(library, CadReplacementConfig(workers=2), workers=pool).replace(graph, nodes)
+        config = CadReplacementConfig(workers=2, parallel_min_objects=4)
+        CadReplacer(library, config, workers=pool).replace(graph, nodes)
         assert pool.started
         for proc in list(pool._pool._processes.values()):  # type: ignore[union-attr]
             os.kill(proc.pid, signal.SIGKILL)
-        replacer = CadReplacer(library, CadReplacementConfig(workers=2), workers=pool)  # nothing cached
+        replacer = CadReplacer(library, config, workers=pool)  # nothing cached
         with caplog.at_level(logging.WARNING, logger="cad_replacement.workers"):
             result = replacer.replace(graph, nodes)
         _assert_same(in_process, _summary(result))
@@ -87,7 +88,8 @@ def test_a_killed_worker_pool_falls_back_to_in_process_replacement(room, in_proc
 
 def test_small_scenes_stay_in_process_and_the_worker_count_is_checked(room):
     graph, nodes, library = room
-    config = CadReplacementConfig(workers=2, parallel_min_objects=10_000)
+    things = sum(1 for n in graph.nodes.values() if n.category != "layout" and n.id in nodes)
+    config = CadReplacementConfig(workers=2, parallel_min_objects=things + 1)
     replacer = CadReplacer(library, config)
     replacer.replace(graph, nodes)
     assert not replacer.workers_running
