@@ -152,3 +152,84 @@ def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
             proc.kill()
             out, _ = proc.communicate()
     assert "scene revision 1" in out, out
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (exists and is not a zombie)."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="utf-8") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _descendants(pid: int) -> set[int]:
+    """Live descendant process ids of ``pid`` (from /proc: the fork server and its workers)."""
+    parents: dict[int, int] = {}
+    for stat in os.listdir("/proc"):
+        if not stat.isdigit():
+            continue
+        try:
+            with open(f"/proc/{stat}/stat", encoding="utf-8") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if fields[0] != "Z":
+            parents[int(stat)] = int(fields[1])
+    out: set[int] = set()
+    todo = [pid]
+    while todo:
+        p = todo.pop()
+        kids = {c for c, pp in parents.items() if pp == p}
+        todo.extend(kids - out)
+        out |= kids
+    return out
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc to see the worker processes")
+def test_the_node_replaces_in_worker_processes_and_stops_them_on_shutdown(tmp_path):
+    import rclpy
+    from scene_recon_interfaces.msg import ContactGraph, PanopticEntityArray
+    from std_msgs.msg import Header, String
+
+    from ros_nodes.contact_graph_node import graph_to_msg
+    from ros_nodes.entity_conversions import entity_to_msg
+    from ros_nodes.qos import ENTITIES, LATCHED
+
+    entities, graph = _room()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id("spare1")), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    proc = subprocess.Popen([sys.executable, "-m", "ros_nodes.cad_replacer_node", "--ros-args",
+                             "-p", "seeds_per_class:=1", "-p", f"output_dir:={tmp_path / 'scene'}",
+                             "-p", "min_period_s:=0.0", "-p", "replace.workers:=2",
+                             "-p", "replace.parallel_min_objects:=2"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
+    rclpy.init()
+    node = rclpy.create_node("planner_client")
+    descriptions: list = []
+    helpers: set[int] = set()
+    try:
+        node.create_subscription(String, "robot_description", descriptions.append, LATCHED)
+        pub_entities = node.create_publisher(PanopticEntityArray, "contact_graph_entities", ENTITIES)
+        pub_graph = node.create_publisher(ContactGraph, "contact_graph", LATCHED)
+        assert spin_until(node, lambda: pub_entities.get_subscription_count() > 0, 60), "node never subscribed"
+        header = Header(frame_id="map")
+        pub_entities.publish(PanopticEntityArray(header=header, entities=[entity_to_msg(e) for e in entities]))
+        pub_graph.publish(graph_to_msg(graph, header))
+        assert spin_until(node, lambda: bool(descriptions), 120), f"no description, node exit {proc.poll()}"
+        for name in ("table_2", "fridge_3", "shelf_4", "cup_5"):
+            assert f'link name="{name}"' in descriptions[-1].data, name
+        helpers = _descendants(proc.pid)
+        assert len(helpers) >= 3, helpers  # the fork server and two workers
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        proc.terminate()
+        try:
+            out, _ = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, _ = proc.communicate()
+    assert proc.returncode == 0, out
+    left = [p for p in helpers if _alive(p)]
+    assert not left, f"worker processes left running: {left}\n{out}"
