@@ -112,6 +112,36 @@ def run_setting(graph, nodes, gt: GroundTruthScene, library: CadLibrary, method:
             "support_switches": {k: list(v) for k, v in check.last_report.support_switches.items()}, **figures}
 
 
+def _plot(results: dict[str, list[dict[str, Any]]], path: Path) -> None:
+    """Run time against error: per setting and scene, seconds per object vs pose success and AE."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    markers = {"gt/ours/in-library": "o", "gt/ours/unseen": "s", "gt/paper/unseen": "x", "mapped/ours/unseen": "^"}
+    for label, rows in results.items():
+        x = [r["per_object_s"] for r in rows]
+        pose = [100.0 * (r["objects"].get("pose_success") or 0.0) for r in rows]
+        ae = [1000.0 * (r["objects"].get("ae_median") or 0.0) for r in rows]
+        m = markers.get(label, ".")
+        axes[0].scatter(x, pose, marker=m, label=label)
+        axes[1].scatter(x, ae, marker=m, label=label)
+        for xi, yi, r in zip(x, pose, rows, strict=True):
+            axes[0].annotate(r["scene"].replace("bench-", ""), (xi, yi), fontsize=7, alpha=0.7)
+    axes[0].set_ylabel("pose success per scene (%)")
+    axes[1].set_ylabel("Alignment Error median per scene (mm)")
+    for ax in axes:
+        ax.set_xlabel("wall seconds per object (warm)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("CAD replacement: run time against error (bench_cad.py)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def _overrides(pairs: list[str]) -> dict[str, Any]:
     """``KEY=VALUE`` strings -> typed CadReplacementConfig overrides (the field's default gives the type)."""
     defaults = CadReplacementConfig()
@@ -212,7 +242,8 @@ def main(argv: list[str] | None = None) -> int:
     for label, s in summary.items():
         print(label, {k: (round(v, 4) if isinstance(v, float) else v) for k, v in s.items()})
     path = write_result("bench_cad", {"summary": summary, "rows": results, "overrides": overrides})
-    print(f"wrote {path}")
+    _plot(results, path.with_suffix(".png"))
+    print(f"wrote {path} and {path.with_suffix('.png')}")
     return 0
 
 
