@@ -5,11 +5,12 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 import trimesh
-from testsupport.ros import call_service, domain_id, spin_until
+from testsupport.ros import call_service, domain_id, spin_until, stop_client_and_node
 
 pytestmark = pytest.mark.ros
 
@@ -143,14 +144,7 @@ def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
         res, _ = call_service(node, export, Trigger.Request())
         assert res.success and (out_dir / "scene.urdf").is_file() and (out_dir / "joint_states.json").is_file()
     finally:
-        node.destroy_node()
-        rclpy.shutdown()
-        proc.terminate()
-        try:
-            out, _ = proc.communicate(timeout=15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, _ = proc.communicate()
+        out = stop_client_and_node(node, proc)
     assert "scene revision 1" in out, out
 
 
@@ -161,6 +155,14 @@ def _alive(pid: int) -> bool:
             return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            return fh.read().replace(b"\0", b" ").decode(errors="replace")[:200]
+    except OSError:
+        return "?"
 
 
 def _descendants(pid: int) -> set[int]:
@@ -186,7 +188,6 @@ def _descendants(pid: int) -> set[int]:
     return out
 
 
-@pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc to see the worker processes")
 def test_the_node_replaces_in_worker_processes_and_stops_them_on_shutdown(tmp_path):
     import rclpy
     from scene_recon_interfaces.msg import ContactGraph, PanopticEntityArray
@@ -222,14 +223,11 @@ def test_the_node_replaces_in_worker_processes_and_stops_them_on_shutdown(tmp_pa
         helpers = _descendants(proc.pid)
         assert len(helpers) >= 3, helpers  # the fork server and two workers
     finally:
-        node.destroy_node()
-        rclpy.shutdown()
-        proc.terminate()
-        try:
-            out, _ = proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, _ = proc.communicate()
+        out = stop_client_and_node(node, proc, timeout=30)
     assert proc.returncode == 0, out
-    left = [p for p in helpers if _alive(p)]
-    assert not left, f"worker processes left running: {left}\n{out}"
+    # the fork server, the workers and the resource tracker notice the node's end on their pipes
+    deadline = time.monotonic() + 10.0
+    while any(_alive(p) for p in helpers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = {p: _cmdline(p) for p in helpers if _alive(p)}
+    assert not left, f"processes left running: {left}\n{out}"

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 import trimesh
-from testsupport.ros import domain_id
+from testsupport.ros import domain_id, stop_client_and_node
 
 pytestmark = pytest.mark.ros
 
@@ -105,14 +105,7 @@ def test_node_builds_and_updates_the_contact_graph_over_dds():
         assert ("boxes", Marker.LINE_LIST) in kinds and ("supports", Marker.ARROW) in kinds
         assert ("support_planes", Marker.CUBE) in kinds
     finally:
-        node.destroy_node()
-        rclpy.shutdown()
-        proc.terminate()
-        try:
-            out, _ = proc.communicate(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, _ = proc.communicate()
+        out = stop_client_and_node(node, proc, timeout=10)
     assert "contact graph:" in out, out
 
 

@@ -45,6 +45,24 @@ def spin_until(node, predicate, timeout: float) -> bool:
     return False
 
 
+def stop_client_and_node(node, proc, timeout: float = 15.0) -> str:
+    """End a test: destroy the client `node`, shut rclpy down, SIGTERM the node process `proc`
+    (SIGKILL after `timeout` s) and return what it printed."""
+    import subprocess
+
+    import rclpy
+
+    node.destroy_node()
+    rclpy.shutdown()
+    proc.terminate()
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+    return str(out)
+
+
 def call_service(node, client, request, timeout: float = 30.0):
     """Call a service from `node` and wait for the answer: (response, seconds it took)."""
     import time
