@@ -50,19 +50,33 @@ def _room():
     return entities, builder.build(name="room")
 
 
-def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
-    import rclpy
-    import yourdfpy
+def _publish_room(node, entities, graph) -> None:
+    """Stand in for the contact graph node: publish the room's node geometry and its graph."""
     from scene_recon_interfaces.msg import ContactGraph, PanopticEntityArray
-    from scene_recon_interfaces.srv import ApplySceneAction
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import Header, String
-    from std_srvs.srv import Trigger
-    from tf2_msgs.msg import TFMessage
+    from std_msgs.msg import Header
 
     from ros_nodes.contact_graph_node import graph_to_msg
     from ros_nodes.entity_conversions import entity_to_msg
-    from ros_nodes.qos import ENTITIES, LATCHED, TF_STATIC
+    from ros_nodes.qos import ENTITIES, LATCHED
+
+    pub_entities = node.create_publisher(PanopticEntityArray, "contact_graph_entities", ENTITIES)
+    pub_graph = node.create_publisher(ContactGraph, "contact_graph", LATCHED)
+    assert spin_until(node, lambda: pub_entities.get_subscription_count() > 0, 60), "node never subscribed"
+    header = Header(frame_id="map")
+    pub_entities.publish(PanopticEntityArray(header=header, entities=[entity_to_msg(e) for e in entities]))
+    pub_graph.publish(graph_to_msg(graph, header))
+
+
+def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
+    import rclpy
+    import yourdfpy
+    from scene_recon_interfaces.srv import ApplySceneAction
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import String
+    from std_srvs.srv import Trigger
+    from tf2_msgs.msg import TFMessage
+
+    from ros_nodes.qos import LATCHED, TF_STATIC
 
     entities, graph = _room()
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id("spare1")), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -92,13 +106,7 @@ def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
         node.create_subscription(JointState, "joint_states", joint_states.append, 10)
         node.create_subscription(TFMessage, "/tf", on_tf, 100)
         node.create_subscription(TFMessage, "/tf_static", on_static, TF_STATIC)
-        # (standing in for the contact graph node: its node geometry and its graph)
-        pub_entities = node.create_publisher(PanopticEntityArray, "contact_graph_entities", ENTITIES)
-        pub_graph = node.create_publisher(ContactGraph, "contact_graph", LATCHED)
-        assert spin_until(node, lambda: pub_entities.get_subscription_count() > 0, 60), "node never subscribed"
-        header = Header(frame_id="map")
-        pub_entities.publish(PanopticEntityArray(header=header, entities=[entity_to_msg(e) for e in entities]))
-        pub_graph.publish(graph_to_msg(graph, header))
+        _publish_room(node, entities, graph)
         # (each topic arrives on its own: under load /tf_static can come after the description)
         ready = spin_until(node, lambda: bool(descriptions) and "cup_5" in tf and bool(joint_states)
                            and "table_2" in static, 120)
@@ -190,12 +198,9 @@ def _descendants(pid: int) -> set[int]:
 
 def test_the_node_replaces_in_worker_processes_and_stops_them_on_shutdown(tmp_path):
     import rclpy
-    from scene_recon_interfaces.msg import ContactGraph, PanopticEntityArray
-    from std_msgs.msg import Header, String
+    from std_msgs.msg import String
 
-    from ros_nodes.contact_graph_node import graph_to_msg
-    from ros_nodes.entity_conversions import entity_to_msg
-    from ros_nodes.qos import ENTITIES, LATCHED
+    from ros_nodes.qos import LATCHED
 
     entities, graph = _room()
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id("spare1")), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
@@ -211,12 +216,7 @@ def test_the_node_replaces_in_worker_processes_and_stops_them_on_shutdown(tmp_pa
     helpers: set[int] = set()
     try:
         node.create_subscription(String, "robot_description", descriptions.append, LATCHED)
-        pub_entities = node.create_publisher(PanopticEntityArray, "contact_graph_entities", ENTITIES)
-        pub_graph = node.create_publisher(ContactGraph, "contact_graph", LATCHED)
-        assert spin_until(node, lambda: pub_entities.get_subscription_count() > 0, 60), "node never subscribed"
-        header = Header(frame_id="map")
-        pub_entities.publish(PanopticEntityArray(header=header, entities=[entity_to_msg(e) for e in entities]))
-        pub_graph.publish(graph_to_msg(graph, header))
+        _publish_room(node, entities, graph)
         assert spin_until(node, lambda: bool(descriptions), 120), f"no description, node exit {proc.poll()}"
         for name in ("table_2", "fridge_3", "shelf_4", "cup_5"):
             assert f'link name="{name}"' in descriptions[-1].data, name
