@@ -127,6 +127,19 @@ class CadReplacementConfig:
     #: suite (poses, joint values, AE, stillness) and cost time on the largest objects.
     refine_rounds: int = 1
     refine_max_nfev: int = 15
+    #: Ours: the best candidate's other front layouts (doors, drawers, their counts and hinge sides;
+    #: ``cad.layouts``) get full fits too, when it is a procedural model of a class with layouts:
+    #: a library without the object's front otherwise gives it another layout's joints and a
+    #: carcass stretched over the parts it cannot open.
+    layout_search: bool = True
+    #: Ours: relative score a layout variant must gain over the library's own model to replace it.
+    layout_margin: float = 0.05
+    #: Ours: the layouts are searched when a part of the best candidate is open or at least
+    #: ``layout_outlier_share`` of the points lie farther than ``layout_outlier_m`` from it; the
+    #: ``layout_fits`` variants with the lowest AE at the screened pose get the full fit.
+    layout_outlier_m: float = 0.03
+    layout_outlier_share: float = 0.01
+    layout_fits: int = 1
 
     #: Random seed of every subsample (deterministic results).
     seed: int = 0
@@ -153,6 +166,8 @@ class CadReplacementConfig:
             raise ValueError("workers must be >= 0 (0: one per usable CPU, 1: in-process)")
         if self.robust_scale <= 0.0:
             raise ValueError("robust_scale must be positive")
+        if self.layout_margin < 0.0:
+            raise ValueError("layout_margin must be >= 0")
 
 
 __all__ = ["CadReplacementConfig", "Method"]

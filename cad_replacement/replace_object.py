@@ -22,15 +22,18 @@ The global physical check of Sec. 4.4 consumes ``ObjectReplacement.candidates`` 
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
+import open3d.core as o3c
 from numpy.typing import NDArray
 
 from cad_replacement.cad.feature_types import ModelFeatures
+from cad_replacement.cad.layouts import layout_variants
 from cad_replacement.cad.library import CadEntry
 from cad_replacement.cad.model import CadModel
 from recon_core.classes import ClassTable
@@ -253,6 +256,10 @@ def replace_object(
     return base
 
 
+#: A part counts as open (``_front_unexplained``) beyond this angle (revolute) or shift (prismatic).
+LAYOUT_OPEN_ANGLE = np.radians(5.0)
+LAYOUT_OPEN_SHIFT = 0.02
+
 #: Joint changes below which another refit round is not worth it (rad for revolute, m for prismatic).
 REFIT_ANGLE = np.radians(2.0)
 REFIT_SHIFT = 0.01
@@ -330,9 +337,10 @@ def _align_ours(
     screened.sort(key=lambda it: it[0])
 
     t = time.perf_counter()
-    t_art = 0.0
+    fitter = _FullFit(prepared, cfg, bottom, height, round_weight)
     results: list[CandidateResult] = []
     full_count: dict[str, int] = {}
+    screened_x: dict[int, NDArray[np.float64]] = {}
     for score, m, x, cost, nfev in screened:
         geom = geoms[m.entry.key]
         # The full fit compares models; at most two orientations of one model (front/back of a
@@ -344,21 +352,54 @@ def _align_ours(
             results.append(CandidateResult(m, pl, nan_ae, float(score) * 10.0, {}, "screen", cost, nfev))
             continue
         full_count[m.entry.key] = full_count.get(m.entry.key, 0) + 1
-        # Articulated models: screening fitted the body through the articulation envelope (open
-        # doors and pulled-out drawers neither drag it nor count as clutter). The joints are
-        # estimated at the screened pose (1-D searches, ``articulation``); the full fit then runs
-        # against the model at those joint values (exact configuration: the door's points and the
-        # inside it uncovers count) with the open joints' values as parameters too (pose and joints
-        # refined together), and the joints are searched again from the refined pose; while that
-        # search moves them, the joint fit is repeated (``refine_rounds``).
-        # Rigid models: one fit, Eq. (11) with dense residuals.
+        screened_x[id(m)] = x
+        results.append(fitter.fit(m, geom, x, cost, nfev))
+    if cfg.layout_search:
+        results.extend(_layout_search(results, screened_x, cache, fitter, cfg))
+    timings["align"] = time.perf_counter() - t - fitter.t_art
+    timings["articulation"] = fitter.t_art
+    return results
+
+
+class _FullFit:
+    """The full fit of one screened candidate (articulation, anisotropic scale, final AE).
+
+    Articulated models: screening fitted the body through the articulation envelope (open doors
+    and pulled-out drawers neither drag it nor count as clutter). The joints are estimated at the
+    screened pose (1-D searches, ``articulation``); the full fit then runs against the model at
+    those joint values (exact configuration: the door's points and the inside it uncovers count)
+    with the open joints' values as parameters too (pose and joints refined together), and the
+    joints are searched again from the refined pose; while that search moves them, the joint fit
+    is repeated (``refine_rounds``). Rigid models: one fit, Eq. (11) with dense residuals.
+    """
+
+    def __init__(self, prepared: PreparedObservation, cfg: CadReplacementConfig, bottom: float, height: float,
+                 round_weight: Callable[[MatchCandidate], float]) -> None:
+        self.prepared, self.cfg, self.bottom, self.height = prepared, cfg, bottom, height
+        self.round_weight = round_weight
+        self.t_art = 0.0
+
+    def quick_error(self, m: MatchCandidate, geom: ModelGeometry, x: NDArray[np.float64]) -> float:
+        """AE at the screened pose ``x`` with joint values estimated there (no LM): ranks variants."""
+        pl = AlignmentProblem(geom, m.rotation, self.bottom, self.prepared.fit_points, self.cfg).placement(x)
+        scaled = geom.bare_model.scaled(pl.scale)
+        values: dict[str, float] = {}
+        if geom.model.movable_joints:
+            ta = time.perf_counter()
+            values = estimate_joint_values(self.prepared.fit_points, scaled, pl.pose, self.cfg).values
+            self.t_art += time.perf_counter() - ta
+        return _final_error(self.prepared, geom, pl, values, self.cfg, scaled).ae
+
+    def fit(self, m: MatchCandidate, geom: ModelGeometry, x: NDArray[np.float64], cost: float,
+            nfev: int) -> CandidateResult:
+        prepared, cfg, bottom = self.prepared, self.cfg, self.bottom
         art = None
         values: dict[str, float] = {}
         if geom.model.movable_joints:
             ta = time.perf_counter()
             pl0 = AlignmentProblem(geom, m.rotation, bottom, prepared.fit_points, cfg).placement(x)
             art = estimate_joint_values(prepared.fit_points, geom.bare_model.scaled(pl0.scale), pl0.pose, cfg)
-            t_art += time.perf_counter() - ta
+            self.t_art += time.perf_counter() - ta
             values = art.values
         nfev2 = 0
         max_nfev = cfg.align_max_nfev
@@ -367,10 +408,10 @@ def _align_ours(
             open_joints = [j for j in geom.model.movable_joints if abs(values[j.name] - j.zero_value) > 1e-9]
             prob = AlignmentProblem(
                 geom.articulated(values) if values else geom, m.rotation, bottom, prepared.fit_points, cfg,
-                prepared=prepared, anisotropy_weight=cfg.anisotropy_weight, height_target=height,
+                prepared=prepared, anisotropy_weight=cfg.anisotropy_weight, height_target=self.height,
                 height_weight=cfg.height_weight, model_samples=cfg.align_model_samples,
                 face_reach=cfg.fit_face_reach, point_normals=prepared.fit_normals, joints=open_joints,
-                round_weight=round_weight(m),
+                round_weight=self.round_weight(m),
             )
             x_start = x[:n_base].copy()
             xj, cost2, nfev3 = prob.solve(np.r_[x_start, np.zeros(len(open_joints))], max_nfev)
@@ -384,7 +425,7 @@ def _align_ours(
             q_fit = prob.joint_values(xj)
             ta = time.perf_counter()
             art = estimate_joint_values(prepared.fit_points, scaled, pl.pose, cfg)
-            t_art += time.perf_counter() - ta
+            self.t_art += time.perf_counter() - ta
             values = art.values
             # Another round when the joints moved, or, with parts open (their inside and their own
             # occlusions make the choice pose-dependent), when the pose moved away from where the
@@ -396,10 +437,72 @@ def _align_ours(
         values = art.values if art is not None else scaled.zero_configuration()
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
         score2 = ae.ae * _selection_factor(m, cfg)
-        results.append(CandidateResult(m, pl, ae, score2, values, "full", cost2, nfev + nfev2, art))
-    timings["align"] = time.perf_counter() - t - t_art
-    timings["articulation"] = t_art
-    return results
+        return CandidateResult(m, pl, ae, score2, values, "full", cost2, nfev + nfev2, art)
+
+
+def _joint_signature(geom: ModelGeometry) -> tuple[tuple[str, str, tuple[float, ...], tuple[float, ...]], ...]:
+    """What tells two fronts apart: each moving joint's name, type, origin (mm) and axis."""
+    return tuple(sorted((j.name, j.type, tuple(np.round(np.asarray(j.origin)[:3, 3], 3)),
+                         tuple(np.round(np.asarray(j.axis), 3))) for j in geom.model.movable_joints))
+
+
+def _front_unexplained(best: CandidateResult, geom: ModelGeometry, prepared: PreparedObservation,
+                       cfg: CadReplacementConfig) -> bool:
+    """Whether the observation shows the front the best candidate has: no part found open and
+    fewer than ``layout_outlier_share`` of the points farther than ``layout_outlier_m`` from it.
+
+    A closed front hardly tells layouts apart (a drawer's gaps against a door's at the map's
+    resolution), and searching it only lets noise pick another layout; an open part, or points
+    the model cannot reach, is where the layout shows."""
+    scaled = geom.bare_model.scaled(best.placement.scale)
+    for j in scaled.movable_joints:
+        tol = LAYOUT_OPEN_ANGLE if j.type == "revolute" else LAYOUT_OPEN_SHIFT
+        if abs(best.joint_values.get(j.name, j.zero_value) - j.zero_value) > tol:
+            return True
+    rigid = Placement(best.placement.rotation, best.placement.translation, np.ones(3))
+    scene = posed_scene(scaled.mesh(best.joint_values), rigid)
+    d = scene.compute_distance(o3c.Tensor(prepared.fit_points.astype(np.float32))).numpy()
+    return bool(np.mean(d > cfg.layout_outlier_m) >= cfg.layout_outlier_share)
+
+
+def _layout_search(results: Sequence[CandidateResult], screened_x: dict[int, NDArray[np.float64]],
+                   cache: GeometryCache, fitter: _FullFit, cfg: CadReplacementConfig) -> list[CandidateResult]:
+    """Full fits of the best candidate's most promising other front layouts (``cad.layouts``).
+
+    Only procedural models of classes with layouts have variants, and they are tried only when
+    the best candidate does not explain the front (``_front_unexplained``). Each variant keeps
+    the model's carcass, so the screened pose (fitted through the articulation envelope, where an
+    open door does not stretch the body) is its start: the variants are ranked by their AE there,
+    at joint values estimated there (no LM), and the best ``layout_fits`` get the full fit. A
+    variant must beat the library's own model by ``layout_margin``."""
+    full = [r for r in results if r.stage == "full"]
+    if not full:
+        return []
+    best = min(full, key=lambda r: r.score)
+    x = screened_x.get(id(best.match))
+    variants = layout_variants(best.match.entry)
+    if x is None or not variants:
+        return []
+    base_geom = cache.get(best.match.entry)
+    if not _front_unexplained(best, base_geom, fitter.prepared, cfg):
+        return []
+    seen = {_joint_signature(base_geom)}
+    ranked: list[tuple[float, MatchCandidate, ModelGeometry]] = []
+    for entry in variants:
+        geom = cache.get(entry)
+        sig = _joint_signature(geom)
+        if sig in seen:
+            continue
+        seen.add(sig)
+        m = dataclasses.replace(best.match, entry=entry)
+        ranked.append((fitter.quick_error(m, geom, x), m, geom))
+    ranked.sort(key=lambda it: it[0])
+    out = []
+    for _err, m, geom in ranked[:cfg.layout_fits]:
+        r = fitter.fit(m, geom, x.copy(), 0.0, 0)
+        r.score *= 1.0 + cfg.layout_margin
+        out.append(r)
+    return out
 
 
 def _align_paper(

@@ -597,6 +597,32 @@ def build_wardrobe(p: Params) -> Assembly:
     return asm
 
 
+def _front(**params: ParamValue) -> dict[str, ParamValue]:
+    return params
+
+
+_SIDES = ("left", "right")
+#: Front layouts of each class: the discrete parameters that decide which doors and drawers a
+#: front has (``cad.layouts.layout_variants``). A variant keeps every other parameter of its model
+#: (sizes, styles), so a fit can try the model's carcass with another front.
+FRONT_LAYOUTS: dict[str, tuple[dict[str, ParamValue], ...]] = {
+    "cabinet": (
+        *[_front(layout="doors", hinge_side=s) for s in _SIDES],
+        *[_front(layout="drawers", drawer_count=n) for n in range(2, 6)],
+        *[_front(layout="drawers_over_doors", hinge_side=s) for s in _SIDES],
+        *[_front(layout="open_over_doors", hinge_side=s) for s in _SIDES],
+    ),
+    "fridge": (
+        *[_front(layout=lay, hinge_side=s) for lay in ("single", "top_freezer", "bottom_freezer") for s in _SIDES],
+        _front(layout="side_by_side"),
+    ),
+    "wardrobe": tuple(
+        _front(doors=n, bottom_drawers=k, hinge_side=s)
+        for n in range(1, 5) for k in range(3) for s in (_SIDES if n % 2 else _SIDES[:1])
+    ),
+    "oven": (_front(drawer="yes"), _front(drawer="no")),
+}
+
 SPECS: dict[str, ParamSpec] = {
     "fridge": FRIDGE_PARAMS,
     "microwave": MICROWAVE_PARAMS,

@@ -29,6 +29,7 @@ from cad_replacement.cad.asset_files import MESH_SUFFIXES, default_model_id, fin
 from cad_replacement.cad.feature_types import ModelFeatures
 from cad_replacement.cad.import_meta import load_model_meta
 from cad_replacement.cad.model import CadModel
+from cad_replacement.cad.params import ParamValue
 from cad_replacement.cad.procedural import (
     CLASS_BUILDERS,
     build_model,
@@ -79,6 +80,9 @@ class CadEntry:
     seed: int | None = None
     path: Path | None = None
     asset_root: Path | None = None
+    #: Procedural parameters pinned on top of the seed's draw (``cad.layouts``: the same model with
+    #: another front layout); sorted (name, value) pairs, part of ``key``.
+    overrides: tuple[tuple[str, ParamValue], ...] = ()
 
 
 @dataclass
@@ -183,6 +187,20 @@ class CadLibrary:
         """All models, or those of one class."""
         return [e for e in self._entries if class_name is None or e.class_name == class_name]
 
+    def entry(self, key: str) -> CadEntry | None:
+        """The model a ``cad_id`` names (``replacement.json``): one of ``entries()``, or a front-layout
+        variant of a procedural one (``cad.layouts``); ``None`` when the library has no such model."""
+        from cad_replacement.cad.layouts import parse_variant_key, variant_entry
+
+        base_key, overrides = parse_variant_key(key)
+        base = next((e for e in self._entries if e.key == base_key), None)
+        if base is None or not overrides:
+            return base
+        try:
+            return variant_entry(base, overrides)
+        except ValueError:
+            return None
+
     @property
     def class_names(self) -> list[str]:
         return sorted({e.class_name for e in self._entries})
@@ -195,7 +213,7 @@ class CadLibrary:
             return cached
         if entry.kind == "procedural":
             assert entry.seed is not None
-            definition: dict[str, Any] = procedural_definition(entry.class_name, entry.seed)
+            definition: dict[str, Any] = procedural_definition(entry.class_name, entry.seed, dict(entry.overrides))
             definition["features"] = FEATURE_CACHE_VERSION
             value = definition_digest(definition)
         else:
@@ -246,7 +264,7 @@ class CadLibrary:
         """Full model (meshes and joints); imported models get their features from the cache."""
         if entry.kind == "procedural":
             assert entry.seed is not None
-            return build_model(entry.class_name, entry.seed)
+            return build_model(entry.class_name, entry.seed, overrides=dict(entry.overrides) or None)
         assert entry.path is not None
         m = import_urdf_model(
             entry.path,
@@ -270,7 +288,7 @@ class CadLibrary:
     def _compute(self, entry: CadEntry, digest: str) -> ModelFeatures:
         if entry.kind == "procedural":
             assert entry.seed is not None
-            return build_model(entry.class_name, entry.seed).features
+            return build_model(entry.class_name, entry.seed, overrides=dict(entry.overrides) or None).features
         assert entry.path is not None
         seed = int(digest[:8], 16)
         model = import_urdf_model(

@@ -70,10 +70,8 @@ class _Replacement:
 
 
 def _library_model(library: CadLibrary, cad_id: str) -> CadModel | None:
-    for entry in library.entries():
-        if entry.key == cad_id:
-            return library.model(entry)
-    return None
+    entry = library.entry(cad_id)
+    return None if entry is None else library.model(entry)
 
 
 def scene_from_folder(folder: str | Path, library: CadLibrary) -> tuple[ReplacedScene, dict[str, dict[str, Any]]]:

@@ -5,11 +5,10 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import open3d as o3d
 import pytest
-import trimesh
+from testsupport.observations import observe_model as _observe
+from testsupport.observations import yaw_pose as _pose
 
-from cad_replacement.alignment import raycasting_scene
 from cad_replacement.cad import build_model
 from cad_replacement.cad.model import CadModel
 from cad_replacement.matching import ALL_ROTATIONS, UPRIGHT_ROTATIONS, candidate_classes, orientation_set
@@ -27,40 +26,6 @@ LIB_CLASSES = sorted({*CLASSES, "wardrobe", "dishwasher", "desk", "sofa", "bottl
 @pytest.fixture(scope="module")
 def library(tmp_path_factory: pytest.TempPathFactory) -> SeededLibrary:
     return SeededLibrary(cache_dir=tmp_path_factory.mktemp("cad"), seeds_per_class=3, classes=LIB_CLASSES)
-
-
-def _pose(yaw: float, xyz: tuple[float, float, float]) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    t = np.eye(4)
-    t[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-    t[:3, 3] = xyz
-    return t
-
-
-def _observe(
-    model: CadModel, pose: np.ndarray, values: dict[str, float] | None, rng: np.random.Generator, *, half: bool = True
-) -> tuple[ObjectObservation, trimesh.Trimesh]:
-    """Surface samples of the posed model, seen from a camera in front (camera-facing half), 5 mm noise."""
-    mesh = model.mesh(values)
-    mesh.apply_transform(pose)
-    pts, fidx = trimesh.sample.sample_surface(mesh, 6000, seed=int(rng.integers(1000)))
-    nrm = mesh.face_normals[fidx]
-    front = pose[:3, 0]
-    side = rng.uniform(-0.5, 0.5)
-    c, s = np.cos(side), np.sin(side)
-    view = np.array([c * front[0] - s * front[1], s * front[0] + c * front[1]])
-    cam = pose[:3, 3] + np.r_[2.5 * view, 1.5]
-    if half:  # what a camera there sees: facing it and not hidden behind other parts
-        ray = pts - cam
-        dist = np.linalg.norm(ray, axis=1)
-        hit = raycasting_scene(mesh).cast_rays(
-            o3d.core.Tensor(np.c_[np.broadcast_to(cam, pts.shape), ray / dist[:, None]].astype(np.float32))
-        )["t_hit"].numpy()
-        keep = (np.einsum("ij,ij->i", nrm, -ray) > 0.0) & (hit >= dist - 2e-3)
-        pts, nrm = pts[keep], nrm[keep]
-    pts = pts + rng.normal(0.0, 0.005, pts.shape)
-    obs = ObjectObservation(1, "obj", model.class_name, pts, normals=nrm, support_z=float(pose[2, 3]), front_hint=view)
-    return obs, mesh
 
 
 def _check_pose(rep, model: CadModel, pose: np.ndarray, *, t_tol: float, size_tol: float, ae_tol: float) -> None:

@@ -1,0 +1,104 @@
+"""Front-layout variants of procedural articulated models: the same carcass with other doors and drawers.
+
+A library of a few dozen models per class cannot hold every front an object may have: a cabinet
+with five drawers, a fridge with its freezer on top, a wardrobe with two doors over a drawer. When
+none of the library's models has the object's front, the best fit takes another layout's joints
+and, with those parts open, stretches its carcass to cover the parts it cannot move (a five-drawer
+chest with its drawers pulled out became a cabinet 1.56x too deep). Procedural models can do
+better: the discrete parameters that decide the front (``builders_articulated.FRONT_LAYOUTS``) are
+re-chosen while every other parameter of the model (its sizes, styles) stays, and the fit compares
+those variants on the observation (``replace_object``). Imported models have no such parameters.
+
+A variant is a ``CadEntry`` of the base model with ``overrides``; its key is the base key plus
+``@name=value;name=value`` so ``replacement.json`` names it and ``CadLibrary.entry`` rebuilds it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import replace
+
+import numpy as np
+
+from cad_replacement.cad.builders_articulated import FRONT_LAYOUTS
+from cad_replacement.cad.library import CadEntry
+from cad_replacement.cad.params import Choice, IntRange, ParamValue, Uniform, sample_params
+from cad_replacement.cad.procedural import CLASS_BUILDERS
+
+#: Separates a variant's overrides from its base key (``cabinet_s0004@drawer_count=5;layout=drawers``).
+VARIANT_SEP = "@"
+_ITEM_SEP = ";"
+
+
+def variant_key(base_key: str, overrides: Mapping[str, ParamValue]) -> str:
+    """The key of ``base_key`` with ``overrides`` pinned (sorted, so one variant has one key)."""
+    items = _ITEM_SEP.join(f"{k}={overrides[k]}" for k in sorted(overrides))
+    return f"{base_key}{VARIANT_SEP}{items}"
+
+
+def variant_entry(base: CadEntry, overrides: Mapping[str, ParamValue]) -> CadEntry:
+    """``base`` (a procedural entry) with ``overrides`` checked against its class's parameter table.
+
+    Raises ValueError for an imported model, an unknown parameter or a value out of its table."""
+    if base.kind != "procedural" or base.seed is None:
+        raise ValueError(f"{base.key}: only procedural models have layout variants")
+    spec = CLASS_BUILDERS[base.class_name].params
+    merged = dict(base.overrides)
+    for name, value in overrides.items():
+        if name not in spec:
+            raise ValueError(f"{base.key}: no parameter {name!r} (valid: {list(spec)})")
+        merged[name] = spec[name].check(name, value)
+    pinned = tuple(sorted(merged.items()))
+    root = base.key.split(VARIANT_SEP, 1)[0]
+    return replace(base, key=variant_key(root, dict(pinned)), overrides=pinned)
+
+
+def parse_variant_key(key: str) -> tuple[str, dict[str, ParamValue]]:
+    """``(base key, overrides)`` of a key made by ``variant_key`` (no overrides for a plain key).
+
+    Values come back as strings or numbers by the shape of their text; ``variant_entry`` checks
+    them against the class's table. Raises nothing: a malformed item is left out."""
+    base, _, tail = key.partition(VARIANT_SEP)
+    out: dict[str, ParamValue] = {}
+    for item in filter(None, tail.split(_ITEM_SEP)):
+        name, sep, text = item.partition("=")
+        if not sep:
+            continue
+        out[name] = _number_or_text(text)
+    return base, out
+
+
+def _number_or_text(text: str) -> ParamValue:
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            continue
+    return text
+
+
+def _own_values(entry: CadEntry) -> dict[str, ParamValue]:
+    """The parameters the entry's model was built with (the seed's draw plus its overrides)."""
+    assert entry.seed is not None
+    spec = CLASS_BUILDERS[entry.class_name].params
+    return sample_params(spec, np.random.default_rng(entry.seed), dict(entry.overrides))
+
+
+def layout_variants(entry: CadEntry) -> list[CadEntry]:
+    """The other front layouts of a procedural model (``FRONT_LAYOUTS`` of its class), in table order.
+
+    Layouts equal to the model's own (on the parameters the layout names) are left out; layouts
+    that build the same front anyway (a hinge side of a two-door cabinet) are not detected here:
+    ``replace_object`` compares the built joints."""
+    layouts = FRONT_LAYOUTS.get(entry.class_name)
+    if not layouts or entry.kind != "procedural" or entry.seed is None:
+        return []
+    spec = CLASS_BUILDERS[entry.class_name].params
+    own = _own_values(entry)
+    out = []
+    for layout in layouts:
+        usable = {k: v for k, v in layout.items() if isinstance(spec.get(k), (Choice, IntRange, Uniform))}
+        if all(own.get(k) == v for k, v in usable.items()):
+            continue
+        out.append(variant_entry(entry, usable))
+    return out
