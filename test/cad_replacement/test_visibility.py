@@ -41,7 +41,7 @@ def test_a_noisy_mapped_front_makes_the_cad_front_seen() -> None:
 def test_a_face_the_observation_never_showed_stays_unseen() -> None:
     rng = np.random.default_rng(1)
     obs_pts, obs_nrm, obs_area = _front(800, rng, tilt_deg=20.0)
-    back_pts = obs_pts + [0.0, SIZE[1], 0.0]
+    back_pts = obs_pts + np.array([0.0, SIZE[1], 0.0])
     back_nrm = np.tile([0.0, 1.0, 0.0], (len(back_pts), 1))  # the cover at the back: never observed
     faces = FaceAreas.build(obs_nrm, obs_pts, obs_area, CENTRE)
     seen = visible_samples(back_nrm, np.ones(len(back_pts), dtype=bool), observed_area_per_bin(obs_nrm, obs_area),
