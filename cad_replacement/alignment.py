@@ -516,14 +516,13 @@ class FaceAreas:
     def near(self, q: NDArray[np.int64], reach: int = 1) -> NDArray[np.float64]:
         """Area within ``reach`` slabs of each key's offset (faces straddle borders) whose direction
         bin lies within ``BIN_REACH_DEG`` of the key's (scattered normals, as ``pooled_bin_counts``)."""
-        q = np.asarray(q, dtype=np.int64)
-        slab = q & 0xFFFFFFFF
-        out = np.zeros(len(q))
-        for nb in BIN_NEIGHBOURS[q >> 32].T:  # K columns: the neighbour bins of every key
-            ok = nb >= 0
-            base = (np.where(ok, nb, 0) << 32) + slab
-            out += np.where(ok, np.sum([self._at(base + k) for k in range(-reach, reach + 1)], axis=0), 0.0)
-        return out
+        uq, inv = np.unique(np.asarray(q, dtype=np.int64), return_inverse=True)  # a face's samples share keys
+        nb = BIN_NEIGHBOURS[uq >> 32]  # (U, K) neighbour bins of every key, -1 padded
+        shifts = np.arange(-reach, reach + 1, dtype=np.int64)
+        keys = ((np.maximum(nb, 0) << 32) + (uq & 0xFFFFFFFF)[:, None])[:, :, None] + shifts  # (U, K, S)
+        areas = self._at(keys.reshape(-1)).reshape(keys.shape)
+        out = np.where((nb >= 0)[:, :, None], areas, 0.0).sum(axis=(1, 2))
+        return out[inv.reshape(-1)]
 
 
 def visible_samples(

@@ -440,12 +440,6 @@ class _FullFit:
         return CandidateResult(m, pl, ae, score2, values, "full", cost2, nfev + nfev2, art)
 
 
-def _joint_signature(geom: ModelGeometry) -> tuple[tuple[str, str, tuple[float, ...], tuple[float, ...]], ...]:
-    """What tells two fronts apart: each moving joint's name, type, origin (mm) and axis."""
-    return tuple(sorted((j.name, j.type, tuple(np.round(np.asarray(j.origin)[:3, 3], 3)),
-                         tuple(np.round(np.asarray(j.axis), 3))) for j in geom.model.movable_joints))
-
-
 def _front_unexplained(best: CandidateResult, geom: ModelGeometry, prepared: PreparedObservation,
                        cfg: CadReplacementConfig) -> bool:
     """Whether the observation shows the front the best candidate has: no part found open and
@@ -483,17 +477,11 @@ def _layout_search(results: Sequence[CandidateResult], screened_x: dict[int, NDA
     variants = layout_variants(best.match.entry)
     if x is None or not variants:
         return []
-    base_geom = cache.get(best.match.entry)
-    if not _front_unexplained(best, base_geom, fitter.prepared, cfg):
+    if not _front_unexplained(best, cache.get(best.match.entry), fitter.prepared, cfg):
         return []
-    seen = {_joint_signature(base_geom)}
     ranked: list[tuple[float, MatchCandidate, ModelGeometry]] = []
     for entry in variants:
         geom = cache.get(entry)
-        sig = _joint_signature(geom)
-        if sig in seen:
-            continue
-        seen.add(sig)
         m = dataclasses.replace(best.match, entry=entry)
         ranked.append((fitter.quick_error(m, geom, x), m, geom))
     ranked.sort(key=lambda it: it[0])

@@ -165,6 +165,11 @@ class Assembly:
     def root(self) -> str:
         return next(iter(self._links))
 
+    @property
+    def joints(self) -> tuple[JointSpec, ...]:
+        """The joints declared so far (no geometry is built to know them)."""
+        return tuple(self._joints)
+
     def link(self, name: str, color: tuple[float, float, float, float] | None = None) -> LinkBuilder:
         if name in self._links:
             raise ValueError(f"duplicate link {name!r}")

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -77,28 +78,36 @@ def _number_or_text(text: str) -> ParamValue:
     return text
 
 
-def _own_values(entry: CadEntry) -> dict[str, ParamValue]:
-    """The parameters the entry's model was built with (the seed's draw plus its overrides)."""
-    assert entry.seed is not None
-    spec = CLASS_BUILDERS[entry.class_name].params
-    return sample_params(spec, np.random.default_rng(entry.seed), dict(entry.overrides))
+FrontSignature = tuple[tuple[str, str, tuple[float, ...], tuple[float, ...]], ...]
+
+
+@lru_cache(maxsize=4096)
+def front_signature(class_name: str, seed: int, overrides: tuple[tuple[str, ParamValue], ...]) -> FrontSignature:
+    """What tells two fronts apart: every moving joint's name, type, anchor (mm) and axis.
+
+    Read off the builder's assembly, before any geometry is made (a fraction of a build)."""
+    builder = CLASS_BUILDERS[class_name]
+    asm = builder.build(sample_params(builder.params, np.random.default_rng(seed), dict(overrides)))
+    return tuple(sorted((j.name, str(j.type), tuple(np.round(j.anchor, 3)), tuple(np.round(j.axis, 3)))
+                        for j in asm.joints if j.type != "fixed"))
 
 
 def layout_variants(entry: CadEntry) -> list[CadEntry]:
     """The other front layouts of a procedural model (``FRONT_LAYOUTS`` of its class), in table order.
 
-    Layouts equal to the model's own (on the parameters the layout names) are left out; layouts
-    that build the same front anyway (a hinge side of a two-door cabinet) are not detected here:
-    ``replace_object`` compares the built joints."""
+    A layout that builds the model's own front, or one listed before it (a hinge side of a
+    two-door cabinet, a drawer count its height cannot hold), is left out."""
     layouts = FRONT_LAYOUTS.get(entry.class_name)
     if not layouts or entry.kind != "procedural" or entry.seed is None:
         return []
     spec = CLASS_BUILDERS[entry.class_name].params
-    own = _own_values(entry)
+    seen = {front_signature(entry.class_name, entry.seed, entry.overrides)}
     out = []
     for layout in layouts:
         usable = {k: v for k, v in layout.items() if isinstance(spec.get(k), (Choice, IntRange, Uniform))}
-        if all(own.get(k) == v for k, v in usable.items()):
-            continue
-        out.append(variant_entry(entry, usable))
+        variant = variant_entry(entry, usable)
+        sig = front_signature(variant.class_name, entry.seed, variant.overrides)
+        if sig not in seen:
+            seen.add(sig)
+            out.append(variant)
     return out
