@@ -44,7 +44,7 @@ from cad_replacement.observation import (
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replace_object import CadSource, ObjectReplacement, replace_object
 from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
-from cad_replacement.workers import ReplaceWorkers, resolve_workers
+from cad_replacement.workers import ReplaceWorkers, open3d_threads, resolve_workers
 from recon_core.classes import ClassTable, UnknownClassError, load_class_table
 from recon_core.contact_graph import ContactGraph, GraphNode, SupportEdge
 from recon_core.entity import Entity
@@ -366,7 +366,8 @@ class CadReplacer:
             if isinstance(item, _Cached):
                 done[node.id] = item
             elif item.obs is None:
-                done[node.id] = self._finish(item, item.failure or ObservationError(f"{node.name!r}: no observation"))
+                failure = item.failure or ObservationError(f"{node.name!r}: no observation")
+                done[node.id] = self._finish(item, failure)
             else:
                 future = workers.submit(item.obs, self.config, self.class_table) if workers is not None else None
                 pending.append((item, future))
@@ -398,8 +399,9 @@ class CadReplacer:
 
         Runs with one BLAS thread: the fits multiply matrices of a few hundred points, far too small
         for OpenBLAS threads to pay: on 2 cores a kitchen scene (18 objects, warm caches) took 4.5-5.1 s
-        and 6.7-7.3 CPU s with them, 4.1-4.2 s and 4.4-4.5 CPU s with one (``scene_graph.blas``)."""
-        with single_blas_thread():
+        and 6.7-7.3 CPU s with them, 4.1-4.2 s and 4.4-4.5 CPU s with one (``scene_graph.blas``).
+        With a worker pool, Open3D runs on one thread here too (``workers.open3d_threads``)."""
+        with single_blas_thread(), open3d_threads(1 if self._workers is not None else None):
             return self._replace(graph, entities, name)
 
     def _replace(self, graph: ContactGraph, entities: Mapping[int, Entity], name: str) -> ReplacementResult:

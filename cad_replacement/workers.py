@@ -17,10 +17,12 @@ A pool that cannot start or dies is logged and replaced by in-process replacemen
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import multiprocessing
 import os
 import signal
+from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
@@ -79,6 +81,49 @@ def _replace_in_worker(obs: ObjectObservation, config: CadReplacementConfig,
     return rep
 
 
+#: Thread-count variables of the BLAS and OpenMP runtimes the workers load (numpy's, scipy's and
+#: OpenCV's OpenBLAS each start one thread per core when they load).
+_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """Processes started in this block (the fork server, the workers) load their BLAS and OpenMP
+    runtimes with one thread; this process's own environment is restored after.
+
+    Setting the thread count once loaded (``single_blas_thread``) is not the same: bench-kitchen with
+    2 workers took 2.9-3.6 s so, and 2.1-2.6 s with the runtimes started single-threaded."""
+    saved = {k: os.environ.get(k) for k in _THREAD_VARIABLES}
+    os.environ.update({k: "1" for k in _THREAD_VARIABLES})
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+@contextlib.contextmanager
+def open3d_threads(limit: int | None) -> Iterator[None]:
+    """Open3D (oneTBB: ``OMP_NUM_THREADS`` does not reach it) limited to ``limit`` threads in the
+    block, restored after; ``None`` leaves it alone. While worker processes fill the cores, this
+    process's raycasting threads only contend with them: bench-kitchen with 2 workers took
+    2.7-2.9 s, 2.3-2.4 s with one Open3D thread here."""
+    if limit is None:
+        yield
+        return
+    import open3d as o3d
+
+    before = int(o3d.utility.get_max_threads())
+    o3d.utility.set_max_threads(int(limit))
+    try:
+        yield
+    finally:
+        o3d.utility.set_max_threads(before)
+
+
 def _context() -> multiprocessing.context.BaseContext:
     if "forkserver" in multiprocessing.get_all_start_methods():
         ctx = multiprocessing.get_context("forkserver")
@@ -105,9 +150,12 @@ class ReplaceWorkers:
     def _ensure(self) -> ProcessPoolExecutor | None:
         if self._pool is None and not self.failed:
             try:
-                self._pool = ProcessPoolExecutor(self.workers, mp_context=_context(), initializer=_init_worker,
-                                                 initargs=(self.library,))
-            except (OSError, ValueError, RuntimeError) as exc:
+                with _single_threaded_children():
+                    self._pool = ProcessPoolExecutor(self.workers, mp_context=_context(), initializer=_init_worker,
+                                                     initargs=(self.library,))
+                    for f in [self._pool.submit(os.getpid) for _ in range(self.workers)]:
+                        f.result()  # the fork server and every worker start now, under these settings
+            except (OSError, ValueError, RuntimeError, BrokenProcessPool) as exc:
                 log.warning("CAD replacement workers could not start (%s): replacing in this process", exc)
                 self.failed = True
         return self._pool

@@ -96,3 +96,36 @@ def test_small_scenes_stay_in_process_and_the_worker_count_is_checked(room):
     assert resolve_workers(0) == min(usable_cpus(), 4) and resolve_workers(3) == 3
     with pytest.raises(ValueError, match="workers"):
         CadReplacementConfig(workers=-1)
+
+
+def test_workers_start_single_threaded_and_leave_this_environment_alone(room, monkeypatch):
+    _graph, _nodes, library = room
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "7")
+    pool = ReplaceWorkers(library, 2)
+    try:
+        started = pool._ensure()
+        assert started is not None
+        for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+            assert started.submit(os.getenv, name).result(timeout=60) == "1", name
+    finally:
+        pool.close()
+    assert "OPENBLAS_NUM_THREADS" not in os.environ and os.environ["OMP_NUM_THREADS"] == "7"
+
+
+def test_thread_limits_apply_in_their_block_only():
+    import open3d as o3d
+    import scipy.linalg  # noqa: F401  (scipy's own OpenBLAS)
+
+    from cad_replacement.workers import open3d_threads
+    from scene_graph.blas import _openblas_libraries, single_blas_thread
+
+    libs = _openblas_libraries()
+    assert len(libs) >= 2  # numpy's and scipy's copies
+    before = [getter() for _setter, getter in libs]
+    o3d_before = o3d.utility.get_max_threads()
+    with single_blas_thread(), open3d_threads(1):
+        assert [getter() for _setter, getter in libs] == [1] * len(libs)
+        assert o3d.utility.get_max_threads() == 1
+    assert [getter() for _setter, getter in libs] == before
+    assert o3d.utility.get_max_threads() == o3d_before
