@@ -152,7 +152,12 @@ def _overrides(pairs: list[str]) -> dict[str, Any]:
             raise SystemExit(f"--set {pair!r}: expected KEY=VALUE with KEY a CadReplacementConfig field")
         default = getattr(defaults, key)
         kind = float if default is None else type(default)
-        out[key] = value if kind is str else kind(float(value)) if kind is int else kind(value)
+        if kind is bool:  # bool("false") is True
+            if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                raise SystemExit(f"--set {pair!r}: {key} takes true or false")
+            out[key] = value.lower() in ("true", "1", "yes")
+        else:
+            out[key] = value if kind is str else kind(float(value)) if kind is int else kind(value)
     return out
 
 
