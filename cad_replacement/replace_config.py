@@ -168,6 +168,8 @@ class CadReplacementConfig:
             raise ValueError("robust_scale must be positive")
         if self.layout_margin < 0.0:
             raise ValueError("layout_margin must be >= 0")
+        if self.layout_outlier_m <= 0.0 or not 0.0 <= self.layout_outlier_share <= 1.0 or self.layout_fits < 0:
+            raise ValueError("need layout_outlier_m > 0, 0 <= layout_outlier_share <= 1 and layout_fits >= 0")
 
 
 __all__ = ["CadReplacementConfig", "Method"]

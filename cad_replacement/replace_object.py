@@ -15,7 +15,8 @@ as a dense fit), articulation and selection, for either method of ``CadReplaceme
   screened pose (``articulation``), the full fit (anisotropic scale) at those joint values with
   the open joints refined together with the pose, and the joints searched again; the winner has
   the smallest two-sided AE at its estimated joint values, lightly weighted by the front and class
-  terms.
+  terms. When the winner, a procedural model, leaves its front unexplained, its other front layouts
+  (``cad.layouts``) compete too (``layout_search``).
 
 The global physical check of Sec. 4.4 consumes ``ObjectReplacement.candidates`` (ranked backups).
 """
@@ -442,8 +443,8 @@ class _FullFit:
 
 def _front_unexplained(best: CandidateResult, geom: ModelGeometry, prepared: PreparedObservation,
                        cfg: CadReplacementConfig) -> bool:
-    """Whether the observation shows the front the best candidate has: no part found open and
-    fewer than ``layout_outlier_share`` of the points farther than ``layout_outlier_m`` from it.
+    """Whether the best candidate leaves its front unexplained: a part found open, or at least
+    ``layout_outlier_share`` of the points farther than ``layout_outlier_m`` from its surface.
 
     A closed front hardly tells layouts apart (a drawer's gaps against a door's at the map's
     resolution), and searching it only lets noise pick another layout; an open part, or points

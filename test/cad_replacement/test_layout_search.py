@@ -110,6 +110,9 @@ def test_a_closed_front_keeps_the_library_model(library: SeededLibrary) -> None:
     assert all(r.match.entry.overrides == () for r in rep.candidates)  # not even searched
 
 
-def test_layout_margin_is_validated() -> None:
+def test_layout_settings_are_validated() -> None:
     with pytest.raises(ValueError, match="layout_margin"):
         CadReplacementConfig(layout_margin=-0.1)
+    for bad in ({"layout_outlier_m": 0.0}, {"layout_outlier_share": 1.5}, {"layout_fits": -1}):
+        with pytest.raises(ValueError, match="layout_outlier_m"):
+            CadReplacementConfig(**bad)
