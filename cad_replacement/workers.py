@@ -91,8 +91,9 @@ def _single_threaded_children() -> Iterator[None]:
     """Processes started in this block (the fork server, the workers) load their BLAS and OpenMP
     runtimes with one thread; this process's own environment is restored after.
 
-    Setting the thread count once loaded (``single_blas_thread``) is not the same: bench-kitchen with
-    2 workers took 2.9-3.6 s so, and 2.1-2.6 s with the runtimes started single-threaded."""
+    Setting the thread count once they are loaded (``single_blas_thread``) did not do it: bench-kitchen
+    with 2 workers took 2.9-3.6 s that way, 2.7-2.9 s with the workers started single-threaded, and
+    2.1-2.6 s with this process's Open3D on one thread as well (``open3d_threads``)."""
     saved = {k: os.environ.get(k) for k in _THREAD_VARIABLES}
     os.environ.update({k: "1" for k in _THREAD_VARIABLES})
     try:
@@ -151,10 +152,15 @@ class ReplaceWorkers:
         if self._pool is None and not self.failed:
             try:
                 with _single_threaded_children():
-                    self._pool = ProcessPoolExecutor(self.workers, mp_context=_context(), initializer=_init_worker,
-                                                     initargs=(self.library,))
-                    for f in [self._pool.submit(os.getpid) for _ in range(self.workers)]:
-                        f.result()  # the fork server and every worker start now, under these settings
+                    pool = ProcessPoolExecutor(self.workers, mp_context=_context(), initializer=_init_worker,
+                                               initargs=(self.library,))
+                    try:
+                        for f in [pool.submit(os.getpid) for _ in range(self.workers)]:
+                            f.result()  # the fork server and every worker start now, under these settings
+                    except BaseException:
+                        pool.shutdown(wait=False, cancel_futures=True)
+                        raise
+                self._pool = pool
             except (OSError, ValueError, RuntimeError, BrokenProcessPool) as exc:
                 log.warning("CAD replacement workers could not start (%s): replacing in this process", exc)
                 self.failed = True

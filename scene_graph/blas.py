@@ -27,10 +27,9 @@ _HANDLES: dict[str, tuple[Any, Any] | None] = {}
 def _openblas_libraries() -> list[tuple[Any, Any]]:
     """(setter, getter) of every OpenBLAS loaded in this process.
 
-    numpy, scipy and OpenCV each bring their own copy, and each starts one thread per core: limiting
-    numpy's alone left scipy's (least squares, linear algebra) oversubscribing the cores beside the
-    stage-4 worker processes (bench-kitchen, 2 workers: 2.9-3.2 s, 2.1-2.6 s with every copy at one
-    thread)."""
+    numpy, scipy and OpenCV each bring their own copy, each with one thread per core; limiting numpy's
+    alone left scipy's (linear algebra) free to use every core. (For the stage-4 worker processes
+    this was not enough on its own: they start single-threaded, ``cad_replacement.workers``.)"""
     try:
         with open("/proc/self/maps", encoding="utf-8") as fh:
             libs = sorted({line.split()[-1] for line in fh if "openblas" in line.lower() and "/" in line})

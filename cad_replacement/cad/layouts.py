@@ -23,7 +23,7 @@ import numpy as np
 
 from cad_replacement.cad.builders_articulated import FRONT_LAYOUTS
 from cad_replacement.cad.library import CadEntry
-from cad_replacement.cad.params import Choice, IntRange, ParamValue, Uniform, sample_params
+from cad_replacement.cad.params import ParamValue, sample_params
 from cad_replacement.cad.procedural import CLASS_BUILDERS
 
 #: Separates a variant's overrides from its base key (``cabinet_s0004@drawer_count=5;layout=drawers``).
@@ -100,12 +100,10 @@ def layout_variants(entry: CadEntry) -> list[CadEntry]:
     layouts = FRONT_LAYOUTS.get(entry.class_name)
     if not layouts or entry.kind != "procedural" or entry.seed is None:
         return []
-    spec = CLASS_BUILDERS[entry.class_name].params
     seen = {front_signature(entry.class_name, entry.seed, entry.overrides)}
     out = []
     for layout in layouts:
-        usable = {k: v for k, v in layout.items() if isinstance(spec.get(k), (Choice, IntRange, Uniform))}
-        variant = variant_entry(entry, usable)
+        variant = variant_entry(entry, layout)
         sig = front_signature(variant.class_name, entry.seed, variant.overrides)
         if sig not in seen:
             seen.add(sig)
