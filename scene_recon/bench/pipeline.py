@@ -41,6 +41,8 @@ class RunSpec:
     mode: str = "full"
     method: str = "ours"
     noise: str = "default"
+    #: The oracle's noise draw (`oracle.seed`): the robustness protocol maps every scene under several.
+    noise_seed: int = 0
     physics: bool = True
     seeds_per_class: int = 10
 
@@ -78,10 +80,11 @@ class StageCache:
             store.popitem(last=False)
 
     @staticmethod
-    def map_key(bag: Path, mapper_cfg: Any, data_cfg: Any, noise: str) -> str:
+    def map_key(bag: Path, mapper_cfg: Any, data_cfg: Any, noise: str, noise_seed: int = 0) -> str:
         """The settings a map depends on: the recording, the resolved mapper and data configs (a sweep
-        point equal to a preset's value is the same map), the oracle's noise level."""
-        return json.dumps([str(bag), to_dict(mapper_cfg), to_dict(data_cfg), noise], sort_keys=True, default=str)
+        point equal to a preset's value is the same map), the oracle's noise level and draw."""
+        return json.dumps([str(bag), to_dict(mapper_cfg), to_dict(data_cfg), noise, noise_seed], sort_keys=True,
+                          default=str)
 
     @staticmethod
     def graph_key(map_key: str, graph_cfg: Any) -> str:
@@ -121,11 +124,11 @@ def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = N
     graph_cfg = load_scene_graph_config(None, spec.overrides("scene_graph"))
     cad_cfg = build_config(CadReplacementConfig, {}, spec.overrides("cad", {"method": spec.method}))
     seg_cfg = SegmentationConfig(backend="oracle")
-    seg_cfg.oracle.ground_truth, seg_cfg.oracle.level, seg_cfg.oracle.seed = str(gt), spec.noise, 0
+    seg_cfg.oracle.ground_truth, seg_cfg.oracle.level, seg_cfg.oracle.seed = str(gt), spec.noise, spec.noise_seed
     library = library or CadLibrary(seeds_per_class=spec.seeds_per_class)
     scene = GroundTruthScene.load(gt)
 
-    map_key = StageCache.map_key(bag, mapper_cfg, data_cfg, spec.noise)
+    map_key = StageCache.map_key(bag, mapper_cfg, data_cfg, spec.noise, spec.noise_seed)
     graph_key = StageCache.graph_key(map_key, graph_cfg)
     shared: list[str] = []
     # stage 1-2: segmentation + mapping (frames read, segmented, integrated; entities extracted)
@@ -208,7 +211,12 @@ def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = N
         "frames": run.frames, "keyframes": run.keyframes, "segmentation_calls": run.segmentation_calls,
         "map_memory_mb": summary.get("map_memory_mb"), "entities": len(entities),
         "stage_ms": summary["run"]["stage_ms"],
-        "pq": round(m.pq, 2), "map_mAP": round(m.map, 2),
+        "pq": round(m.pq, 2), "map_mAP": round(m.map, 2), "pq_things": round(m.pq_things, 2),
+        "pq_stuff": round(m.pq_stuff, 2),
+        # what PQ is made of: false positives and misses, and the classes predicted that the scene lacks
+        # (each counts as a class of PQ 0 in the mean)
+        "map_fp": sum(c.fp for c in m.per_class.values()), "map_fn": sum(c.fn for c in m.per_class.values()),
+        "false_classes": sorted(c.class_name for c in m.per_class.values() if c.num_gt == 0 and c.fp > 0),
         "ged_ratio": round(float(gs["ged"]["ratio"]), 4), "box_mAP": round(float(gs["box_map_refined"]["mAP"]), 4),
         "pose_success": objects.get("pose_success"), "ae_median_m": objects.get("ae_median"),
         "cad_objects": cad_objects, "matched_objects": s.get("matched"),

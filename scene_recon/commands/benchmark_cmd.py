@@ -20,7 +20,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "scaling (per-frame cost over a long sequence, time against object count, segmentation latency on "
         "onnxruntime, a computed multi-room / multi-host DDS projection).",
     )
-    p.add_argument("--suite", choices=("quick", "full"), default="quick")
+    p.add_argument("--suite", choices=("quick", "full", "robustness", "robustness-quick"), default="quick",
+                   help="quick/full: presets, sweeps, skips, scaling; robustness: the protocol every accuracy figure "
+                   "comes from (suite + generated scenes, several oracle noise draws each, full mapper against the "
+                   "baseline, mean / std / worst draw); robustness-quick: its CI subset (2 scenes x 3 draws)")
+    p.add_argument("--draws", type=int, metavar="N", help="robustness: noise draws per scene (default 3)")
+    p.add_argument("--scenes", nargs="+", metavar="NAME",
+                   help="robustness: only these scenes (suite scenes bench-*, generated gen-*)")
     p.add_argument("--out", required=True, help="report folder (created; files in it are replaced)")
     p.add_argument("--long-frames", type=int, default=2000, metavar="N",
                    help="full suite: frames of the long sequence for the per-frame cost (default 2000)")
@@ -33,7 +39,31 @@ def run(args: argparse.Namespace) -> int:
     def progress(line: str) -> None:
         print(line, flush=True)
 
+    if args.suite.startswith("robustness"):
+        return _robustness(args, progress)
+
     files = run_suite(args.suite, Path(args.out), progress, long_frames=args.long_frames)
+    for kind, path in files.items():
+        print(f"{kind}: {path}")
+    sys.stdout.flush()
+    return 0
+
+
+def _robustness(args: argparse.Namespace, progress) -> int:
+    from recon_core.errors import ConfigError
+    from scene_recon.bench.robustness import protocol_spec, run_protocol, summary_lines, write_protocol_report
+
+    if args.draws is not None and args.draws < 1:
+        raise ConfigError(f"--draws must be at least 1, got {args.draws}")
+    try:
+        spec = protocol_spec("quick" if args.suite == "robustness-quick" else "full", args.draws, args.scenes)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from exc
+    results = run_protocol(spec, Path(args.out), progress)
+    files = write_protocol_report(results, Path(args.out))
+    print("\nsummary (mean ± std over scenes and draws, worst draw):")
+    for line in summary_lines(results):
+        print(f"  {line}")
     for kind, path in files.items():
         print(f"{kind}: {path}")
     sys.stdout.flush()

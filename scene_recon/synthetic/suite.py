@@ -67,7 +67,13 @@ def suite_scene(name: str, progress: bool = True, regenerate: bool = False) -> t
     """(bag, ground truth folder) of a suite scene, generating it on first use."""
     if name not in SUITE:
         raise KeyError(f"unknown suite scene {name!r}; known: {', '.join(SUITE)}")
-    scene = SUITE[name]
+    return scene_paths(SUITE[name], progress, regenerate)
+
+
+def scene_paths(scene: SuiteScene, progress: bool = True, regenerate: bool = False) -> tuple[Path, Path]:
+    """(bag, ground truth folder) of any scene definition (a suite scene or one of the robustness
+    protocol's generated scenes), generated into the cache on first use."""
+    name = scene.name
     bag = cache_root() / f"{name}-{_key(scene)}" / name
     gt = ground_truth_path(bag)
     done = gt / "generation.json"
