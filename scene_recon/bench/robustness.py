@@ -283,12 +283,14 @@ def summary_lines(results: dict[str, Any]) -> list[str]:
         st = s["paired"].get(f)
         if st is not None:
             name, scale, unit = _DISPLAY[f]
-            lines.append(f"full - baseline {name}, same draws: {scale * st['mean']:+.2f} ± {scale * st['std']:.2f}{unit} "
-                         f"(worst {scale * st['worst']:+.2f}, best {scale * st['best']:+.2f})")
+            lines.append(f"full - baseline {name}, same draws: {scale * st['mean']:+.2f} ± "
+                         f"{scale * st['std']:.2f}{unit} (worst {scale * st['worst']:+.2f}, "
+                         f"best {scale * st['best']:+.2f})")
     gt = s.get("gt_entities", {}).get("overall", {})
     if gt.get("pose_success"):
         g = gt["pose_success"]
-        lines.append(f"ground-truth entities: pose success {100 * g['mean']:.1f} % (worst scene {100 * g['worst']:.1f} %)")
+        lines.append(f"ground-truth entities: pose success {100 * g['mean']:.1f} % "
+                     f"(worst scene {100 * g['worst']:.1f} %)")
     return lines
 
 
@@ -303,12 +305,13 @@ def _table(results: dict[str, Any]) -> list[str]:
             cells = [scene, mode]
             for f in ("pq", "box_mAP", "ged_ratio", "pose_success", "ae_median_m", "stillness", "map_ms_per_frame"):
                 st = figs.get(f)
-                name, scale, unit = _DISPLAY[f]
+                _name, scale, _unit = _DISPLAY[f]
                 cells.append("n/a" if st is None else
                              f"{scale * st['mean']:.1f} ± {scale * st['std']:.1f} (worst {scale * st['worst']:.1f})")
             md.append("| " + " | ".join(cells) + " |")
     if gt:
-        md += ["", "| scene | GT-entity pose success | GT-entity AE median | GT-entity stillness |", "|---|---|---|---|"]
+        md += ["", "| scene | GT-entity pose success | GT-entity AE median | GT-entity stillness |",
+               "|---|---|---|---|"]
         md += [f"| {sc} | {_fmt(g['pose_success'], pct=True)} | {_fmt(g['ae_median_m'], mm=True)} | "
                f"{_fmt(g['stillness'], pct=True)} |" for sc, g in gt.items()]
     return md
