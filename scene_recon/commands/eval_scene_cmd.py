@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from scene_recon.commands.common import print_json
@@ -59,5 +60,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"contact graph GED against the ground truth: {b['total']} before, {a['total']} after replacement "
               f"(wrong supports {b['wrong_support']} -> {a['wrong_support']})")
     for engine, rep in figures.get("physics", {}).items():
-        print(f"{engine}: loaded {rep.get('loaded')}, still {rep.get('still_fraction')}")
+        still = rep.get("still_fraction")
+        drifts = [d for d in (rep.get("displacement") or {}).values() if d is not None and math.isfinite(d)]
+        moved = max(drifts, default=None)
+        print(f"{engine}: {'loaded' if rep.get('loaded') else 'NOT loaded'}, still "
+              + (f"{100 * still:.1f} %" if still is not None else "-")
+              + (f" of the movable objects (largest drift {100 * moved:.1f} cm)" if moved is not None else ""))
+        for error in rep.get("errors", [])[:3]:
+            print(f"  {engine} error: {error}")
     return 0
