@@ -78,13 +78,13 @@ def native_output_captured(show: bool = False, fds: tuple[int, ...] = (1, 2),
             except OSError:  # descriptor closed: nothing can be written there anyway
                 continue
         for fd, copy in saved.items():
-            name = _STREAMS.get(fd)
+            name = _STREAMS.get(fd, "")
             stream = getattr(sys, name) if name else None
-            if stream is not None and _fileno(stream) == fd:
+            if name and stream is not None and _fileno(stream) == fd:
                 replacement = open(os.dup(copy), "w", encoding=getattr(stream, "encoding", None) or "utf-8",  # noqa: SIM115
                                    errors=getattr(stream, "errors", None) or "backslashreplace",
                                    buffering=1, closefd=True)
-                setattr(sys, name, replacement)  # type: ignore[arg-type]
+                setattr(sys, name, replacement)
                 swapped.append((name, stream, replacement))
                 for handler in _stream_handlers():
                     if handler.stream is stream:
@@ -100,7 +100,7 @@ def native_output_captured(show: bool = False, fds: tuple[int, ...] = (1, 2),
             os.dup2(copy, fd)
             os.close(copy)
         for handler, old in handlers:
-            handler.setStream(old)  # type: ignore[arg-type]
+            handler.setStream(old)
         for name, old, new in swapped:
             setattr(sys, name, old)
             new.close()
