@@ -10,7 +10,10 @@ compression, which every MCAP reader (rosbags, rosbag2's mcap plugin, Foxglove) 
 nothing about reading changes. lz4 is the default because reading must stay fast: on the demo
 bag it takes 830 MB to about 360 MB (depth 2.4x, label images 75x; noisy colour does not compress
 losslessly) and adds about 1 ms of decompression per colour/depth pair; `zstd` makes the bag a
-third smaller again (about 275 MB) at about 3 ms per pair (docs/DATA_SOURCES.md). SQLite (`.db3`)
+third smaller again (about 275 MB) at about 3 ms per pair (docs/DATA_SOURCES.md). Every image
+message gets a chunk of its own and TF and camera info share one per frame: readers pick chunks
+by channel, so the pass over TF and a pass over colour and depth decompress nothing else (rosbags'
+writer closed a chunk every 1 MB, mixing all topics). SQLite (`.db3`)
 bags are written uncompressed (rosbag2's per-message compression there needs a plugin many readers
 lack).
 """
@@ -117,6 +120,13 @@ class RGBDBagWriter:
     def write_msg(self, topic: str, msgtype: str, msg: object, log_time_ns: int) -> None:
         self._writer.write(self._conn(topic, msgtype), log_time_ns, self.ts.serialize_cdr(msg, msgtype))
 
+    def close_chunk(self) -> None:
+        """MCAP: end the pending chunk here (when it holds messages), so what follows starts a new one."""
+        storage = self._writer.storage
+        chunk = getattr(storage, "chunk", None)
+        if chunk is not None and getattr(chunk, "msgs", None) and hasattr(storage, "close_chunk"):
+            storage.close_chunk()
+
     def _header(self, stamp_ns: int, frame_id: str):
         t = self.ts.types
         return t["std_msgs/msg/Header"](
@@ -182,15 +192,19 @@ class RGBDBagWriter:
             self.write_tf(stamp_ns, [(self.map_frame, self.camera_link, t_map_link)])
         self.write_msg(self.topics.camera_info, "sensor_msgs/msg/CameraInfo",
                        self.camera_info_msg(stamp_ns, intrinsics), stamp_ns)
+        self.close_chunk()  # TF and camera info of this frame in one small chunk, each image in its own
         self.write_msg(self.topics.color, "sensor_msgs/msg/Image",
                        self.image_msg(stamp_ns, self.optical_frame, encode_color(color, self.color_encoding)),
                        stamp_ns)
+        self.close_chunk()
         self.write_msg(self.topics.depth, "sensor_msgs/msg/Image",
                        self.image_msg(stamp_ns, self.optical_frame, encode_depth(depth_m, self.depth_encoding)),
                        stamp_ns)
+        self.close_chunk()
         if labels is not None:
             lab = np.ascontiguousarray(labels, dtype="<i4")
             enc = ("32SC1", lab.shape[0], lab.shape[1], lab.strides[0], lab.reshape(-1).view(np.uint8))
             self.write_msg(self.topics.labels, "sensor_msgs/msg/Image",
                            self.image_msg(stamp_ns, self.optical_frame, enc), stamp_ns)
+            self.close_chunk()
         self.frames_written += 1

@@ -109,6 +109,25 @@ def test_every_compression_reads_back_bit_identical_frames(generated, uncompress
         assert b.extras["labels"].dtype == np.int32
 
 
+def test_each_image_has_a_chunk_of_its_own(generated):
+    """Readers pick chunks by channel: the TF pass and a colour/depth pass decompress nothing else."""
+    from rosbags.rosbag2.storage_mcap import McapReader
+
+    bag, frames = generated
+    reader = McapReader(_storage_file(bag))
+    reader.open()
+    try:
+        topics = [sorted(reader.channels[cid].topic for cid in c.channel_count) for c in reader.chunks]
+        counts = [sum(c.channel_count.values()) for c in reader.chunks]
+    finally:
+        reader.close()
+    images = {"/camera/color/image_raw", "/camera/depth/image_rect_raw", "/ground_truth/panoptic_labels"}
+    image_chunks = [(t, n) for t, n in zip(topics, counts, strict=True) if images & set(t)]
+    assert len(image_chunks) == 3 * len(frames)
+    assert all(len(t) == 1 and n == 1 for t, n in image_chunks)
+    assert len(topics) == 4 * len(frames)  # + one chunk of TF and camera info per frame
+
+
 def test_zstd_is_smaller_than_lz4(generated, tmp_path):
     _, frames = generated
     sizes = {c: _storage_file(_rewrite(frames, tmp_path / c, c)).stat().st_size for c in ("lz4", "zstd")}
