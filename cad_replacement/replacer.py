@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from cad_replacement.acceptance import fit_figures, judge
 from cad_replacement.cad.model import CadModel, Link, bounding_box_features
 from cad_replacement.collision import observed_collisions
 from cad_replacement.geometry_cache import GeometryCache, library_store
@@ -82,6 +83,16 @@ class ReplacementRecord:
     timings: dict[str, float] = field(default_factory=dict)
     message: str = ""
     reused: bool = False
+    #: Why the object is kept as its observed mesh although it has CAD candidates ("AE 54 mm > limit
+    #: 30 mm (chair/p3)"; ``acceptance``); "" when a CAD model stands for it.
+    reason: str = ""
+    #: The detected class when a model of another class replaced it (``acceptance``: class margin).
+    substituted_from: str = ""
+    #: Fit quality of the exported model (or of the rejected best candidate): ``ae`` two-sided,
+    #: ``ae_points`` the paper's AE, ``ae_model``, ``coverage``, ``view_coverage``, ``ae_limit`` (m or shares).
+    fit: dict[str, Any] = field(default_factory=dict)
+    #: The class margin's comparison (detected vs other class best AE), when both were fitted.
+    class_comparison: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -326,15 +337,32 @@ class CadReplacer:
             raise outcome
         else:
             replacement = outcome
-            if replacement.model is None and replacement.chosen is not None:  # came from a worker
-                replacement.model = self.cache.get(replacement.chosen.match.entry).model
             record.timings = dict(replacement.timings)
             record.message = replacement.message
+            assert job.obs is not None
+            verdict = judge(replacement, job.obs, self.config)
             record.candidates = [
                 {"cad_id": c.key, "class_name": c.class_name, "matching_error": c.matching_error,
                  "alignment_error": c.ae.ae, "score": c.score, "stage": c.stage, "scale": c.scale.tolist(),
-                 "yaw": c.yaw}
-                for c in replacement.candidates]
+                 "yaw": c.yaw, **{k: v for k, v in fit_figures(c).items() if k != "ae"},
+                 "accepted": not why, "rejected": why}
+                for c, why in zip(replacement.candidates, verdict.rejections, strict=True)]
+            record.reason = verdict.reason
+            record.substituted_from = verdict.substituted_from
+            record.class_comparison = verdict.class_comparison
+            shown = verdict.accepted[0] if verdict.accepted else next(
+                (c for c in replacement.candidates if c.stage == "full"), None)
+            if shown is not None:
+                record.fit = {**fit_figures(shown), "cad_id": shown.key, "ae_limit": verdict.ae_limit}
+                record.alignment_error = record.fit["ae"]
+                record.matching_error = float(shown.matching_error)
+            # Only accepted candidates may be placed, as the choice or as the physical check's backups.
+            replacement.candidates = verdict.accepted
+            replacement.chosen = verdict.accepted[0] if verdict.accepted else None
+            replacement.model = None if replacement.chosen is None else \
+                self.cache.get(replacement.chosen.match.entry).model
+            if verdict.reason and record.candidates:
+                record.message = "; ".join(m for m in (record.message, f"observed mesh kept: {verdict.reason}") if m)
         result = _Cached(job.key, replacement, record)
         self._results[node.id] = result
         return result
