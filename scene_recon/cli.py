@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import codecs
 import contextlib
 import logging
 import os
@@ -60,14 +61,25 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def _escape_undecodable(exc: UnicodeError) -> tuple[str, int]:
+    """Codec error handler: a byte that was not UTF-8 in a path (a surrogate escape) as ``\\xNN``,
+    anything else unencodable as ``\\uNNNN`` (backslashreplace)."""
+    if not isinstance(exc, UnicodeEncodeError):
+        raise exc
+    bad = exc.object[exc.start:exc.end]
+    return "".join(f"\\x{ord(c) - 0xDC00:02x}" if 0xDC80 <= ord(c) <= 0xDCFF else c.encode(
+        "ascii", "backslashreplace").decode("ascii") for c in bad), exc.end
+
+
 def _tolerate_undecodable_paths() -> None:
     """A path with bytes that are not UTF-8 (kept by Python as surrogate escapes) is printed with them
     escaped (\\xNN) instead of ending the command with UnicodeEncodeError (PYTHONIOENCODING=utf-8,
     or a UTF-8 locale other than C.UTF-8, makes stdout strict)."""
+    codecs.register_error("scene_recon_escape", _escape_undecodable)
     for stream in (sys.stdout, sys.stderr):
-        if getattr(stream, "errors", None) == "strict" and hasattr(stream, "reconfigure"):
+        if getattr(stream, "errors", None) in ("strict", "backslashreplace") and hasattr(stream, "reconfigure"):
             with contextlib.suppress(ValueError, OSError):  # a stream that cannot be reconfigured
-                stream.reconfigure(errors="backslashreplace")
+                stream.reconfigure(errors="scene_recon_escape")
 
 
 def _quiet_native_output(args: argparse.Namespace) -> contextlib.AbstractContextManager:
