@@ -12,8 +12,8 @@ and before the scene is assembled:
   the two-sided AE that ranks the candidates are within ``ae_limit`` (a share of the observed box's
   diagonal, clipped to [``accept_ae_min``, ``accept_ae_max``]), and the CAD surface a camera along
   the observation's view would see is covered by observed surface (``view_coverage`` >=
-  ``accept_min_coverage``). Screened-only candidates (no full fit, no real AE) are never kept: the
-  physical check's backups obey the gate too.
+  ``accept_min_coverage``). Screened-only candidates (no full fit) are kept only as the physical check's
+  backups, judged when it asks for one (their AE where they would be placed, ``placed_error``).
 
 When no candidate passes, the replacer exports the object as its observed mesh (collision: its
 convex hull or hull pieces, mass from their volume) and the record says why, e.g.
@@ -22,15 +22,17 @@ convex hull or hull pieces, mass from their volume) and the record says why, e.g
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from cad_replacement.alignment import ModelGeometry, PreparedObservation
 from cad_replacement.observation import ObjectObservation
 from cad_replacement.replace_config import CadReplacementConfig
-from cad_replacement.replace_object import CandidateResult, ObjectReplacement
+from cad_replacement.replace_object import CandidateResult, ObjectReplacement, _final_error
 
 
 def ae_limit(observation: ObjectObservation, cfg: CadReplacementConfig) -> float:
@@ -46,15 +48,24 @@ def fit_figures(candidate: CandidateResult) -> dict[str, float | None]:
         return float(v) if math.isfinite(v) else None
 
     ae = candidate.ae
-    full = candidate.stage == "full"
+    full = candidate.stage in ("full", "placed")
     return {"ae": num(ae.ae) if full else None, "ae_points": num(ae.ae_points) if full else None,
             "ae_model": num(ae.ae_model) if full else None,
             "coverage": num(ae.coverage) if full else None, "view_coverage": num(ae.view_coverage) if full else None}
 
 
+def placed_error(prepared: PreparedObservation, candidate: CandidateResult, geom: ModelGeometry,
+                 cfg: CadReplacementConfig) -> CandidateResult:
+    """A screened-only candidate with its AE measured where it would be placed (stage ``"placed"``):
+    the physical check may take it as a backup, and the gate then judges it like a fitted one."""
+    values = geom.model.zero_configuration() if geom.model.movable_joints else {}
+    ae = _final_error(prepared, geom, candidate.placement, values, cfg)
+    return dataclasses.replace(candidate, ae=ae, stage="placed", joint_values=dict(values))
+
+
 def rejection(candidate: CandidateResult, limit: float, cfg: CadReplacementConfig) -> str:
     """Why ``candidate`` may not stand for the observation ("" when it may)."""
-    if candidate.stage != "full":
+    if candidate.stage not in ("full", "placed"):
         return "not fully fitted"
     ae = candidate.ae
     if not math.isfinite(ae.ae_points) or ae.ae_points > limit:
@@ -81,6 +92,9 @@ class Verdict:
     ae_limit: float = 0.0
     #: Per candidate (same order as the replacement's candidates): "" kept, else why not.
     rejections: list[str] = field(default_factory=list)
+    #: Screened-only candidates of the chosen class, best first: backups the physical check may ask
+    #: for, judged then (``placed_error``), as fitting them all up front would cost more than the scene.
+    backups: list[CandidateResult] = field(default_factory=list)
     #: Class-margin note: both classes' best two-sided AE when they were compared.
     class_comparison: dict[str, Any] = field(default_factory=dict)
 
@@ -110,7 +124,9 @@ def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplac
     # alternative either (the physical check would swap it in unannounced).
     klass = first.class_name if first is not None else detected
     accepted = [c for c in ordered if id(c) in ok and c.class_name == klass]
-    verdict = Verdict(accepted, ae_limit=limit, rejections=rejections, class_comparison=comparison)
+    backups = [c for c in ordered if c.stage == "screen" and c.class_name == klass]
+    verdict = Verdict(accepted, ae_limit=limit, rejections=rejections, class_comparison=comparison,
+                      backups=backups)
     if not accepted:
         best = first if first is not None else (cands[0] if cands else None)
         if best is not None:
@@ -123,4 +139,4 @@ def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplac
     return verdict
 
 
-__all__ = ["Verdict", "ae_limit", "fit_figures", "judge", "rejection"]
+__all__ = ["Verdict", "ae_limit", "fit_figures", "judge", "placed_error", "rejection"]
