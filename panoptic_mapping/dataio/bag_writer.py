@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -100,12 +101,12 @@ class RGBDBagWriter:
         if self.compression == "lz4":
             from lz4.frame import compress as lz4_compress  # type: ignore[import-untyped, unused-ignore]
 
-            storage = self._writer.storage
+            storage: Any = self._writer.storage  # rosbags' McapWriter: its chunk compressor is swapped
             if getattr(storage, "compression", None) != "zstd" or not hasattr(storage, "compressor"):
                 self._writer.close()
                 raise RuntimeError("this rosbags version's MCAP writer cannot take lz4 chunks; use compression='zstd'")
-            storage.compression = "lz4"  # type: ignore[union-attr]
-            storage.compressor = lz4_compress  # type: ignore[union-attr]
+            storage.compression = "lz4"
+            storage.compressor = lz4_compress
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -122,7 +123,7 @@ class RGBDBagWriter:
 
     def close_chunk(self) -> None:
         """MCAP: end the pending chunk here (when it holds messages), so what follows starts a new one."""
-        storage = self._writer.storage
+        storage: Any = self._writer.storage
         chunk = getattr(storage, "chunk", None)
         if chunk is not None and getattr(chunk, "msgs", None) and hasattr(storage, "close_chunk"):
             storage.close_chunk()
