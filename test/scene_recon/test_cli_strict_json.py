@@ -8,6 +8,8 @@ import os
 import re
 import sys
 
+import pytest
+
 from scene_recon.native_output import native_output_captured
 
 NATIVE_MARKERS = ("b3Warning", "pybullet build time", "No inertial data")
@@ -92,3 +94,17 @@ def test_every_json_command_writes_strict_json(tiny_bag, tiny_map, replaced_scen
                              "--no-physics", "--json"])
     assert rc == 0 and figures["matched"] >= 1
     # generate and map: the session fixtures ran `generate --json` (in a child process) and `map --json`
+
+
+@pytest.mark.slow  # about 25 s: the whole pipeline on a 3-object, 12-frame scene
+def test_demo_console_shows_no_native_library_line(tmp_path, run_cli):
+    """`make demo` on a small scene: our steps and summaries only (pybullet's lines shown only with -v)."""
+    proc = run_cli("demo", "--out", str(tmp_path / "demo"), "--objects", "3", "--frames", "12")
+    out, err = proc.stdout.decode(), proc.stderr.decode()
+    assert proc.returncode == 0, (out + err)[-3000:]
+    assert "== 8. interactive scene against the ground truth" in out
+    for marker in NATIVE_MARKERS:
+        assert marker not in out and marker not in err, marker
+    summary = out[out.index("== 8."):]
+    assert re.search(r"pybullet: loaded, still \d+\.\d %", summary), summary
+    assert not re.search(r"\d\.\d{5,}", summary), summary
