@@ -18,6 +18,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 TEXT = README.read_text(encoding="utf-8")
@@ -156,6 +158,7 @@ def _step_by_step() -> list[str]:
     return block
 
 
+@pytest.mark.slow  # about 35 s: eight commands on a 4-object, 20-frame room at 320x240
 def test_step_by_step_commands_run_as_written(tmp_path):
     """The step-by-step block, line by line, in an empty folder (a small room: seconds per stage)."""
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
