@@ -173,7 +173,7 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
         rec = records.get(obj.name, {})
         cand = next((c for c in rec.get("candidates", []) if c.get("cad_id") == obj.cad_id), {})
         chosen = _Chosen(obj.cad_id, obj.class_name, obj.pose, obj.scale, obj.joint_values,
-                         _Alignment(float(cand.get("alignment_error", np.nan))))
+                         _Alignment(*(_number(cand.get(k)) for k in ("alignment_error", "ae_points", "ae_model"))))
         rep = _Replacement(obj.name, obj.class_name, chosen, base, dict(rec.get("timings", {})))
         gt_model = ground_truth.model_of(gt)
         assert gt_model is not None
@@ -216,10 +216,17 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
     return out
 
 
+def _number(value: Any) -> float:
+    """A recorded figure as a float (NaN when the record has none)."""
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else float("nan")
+
+
 #: Why a per-object figure has no finite value (JSON holds null and this reason beside it, never NaN).
 _UNDEFINED = {
-    "ae_points": "not recorded: replacement.json keeps only the chosen candidate's combined alignment error (ae)",
-    "ae_model": "not recorded: replacement.json keeps only the chosen candidate's combined alignment error (ae)",
+    "ae_points": "not recorded: the chosen candidate in replacement.json has no ae_points (written by an older "
+                 "replace, or the candidate was screened only, never fitted)",
+    "ae_model": "not recorded: the chosen candidate in replacement.json has no ae_model (written by an older "
+                "replace, or the candidate was screened only, never fitted)",
     "ae": "not recorded: the chosen candidate has no alignment_error in replacement.json",
 }
 _NO_CHOICE = "no CAD model was chosen for this object"

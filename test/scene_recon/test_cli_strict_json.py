@@ -7,9 +7,12 @@ import ctypes
 import os
 import re
 import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
 
+from scene_recon.commands.common import NON_FINITE_REASONS, print_json
 from scene_recon.native_output import native_output_captured
 
 NATIVE_MARKERS = ("b3Warning", "pybullet build time", "No inertial data")
@@ -41,6 +44,16 @@ def test_native_output_is_captured_at_the_descriptor_level_and_python_output_is_
     assert capfd.readouterr().out == ""
 
 
+def test_print_json_writes_null_with_a_reason_for_nan_and_infinity(capsys, strict_json):
+    print_json({"a": float("nan"), "b": np.float32(np.inf), "b_null_reason": "nothing matched", "c": [1.5, np.nan],
+                "d": np.arange(2), "e": {"f": -np.inf}, "path": Path(os.fsdecode(b"/tmp/x\xfe"))})
+    data = strict_json(capsys.readouterr().out)
+    assert data == {"a": None, "a_null_reason": NON_FINITE_REASONS["nan"],
+                    "b": None, "b_null_reason": "nothing matched",  # the producer's reason is kept
+                    "c": [1.5, None], "d": [0, 1], "e": {"f": None, "f_null_reason": NON_FINITE_REASONS["inf"]},
+                    "path": "/tmp/x\\xfe"}
+
+
 def test_eval_scene_json_is_strict_and_free_of_physics_engine_chatter(replaced_scene, run_cli, strict_json):
     gt, _graph, scene = replaced_scene
     proc = run_cli("eval-scene", str(scene), str(gt), "--seeds-per-class", "3", "--json")
@@ -50,10 +63,9 @@ def test_eval_scene_json_is_strict_and_free_of_physics_engine_chatter(replaced_s
     for marker in NATIVE_MARKERS:
         assert marker not in out and marker not in err, marker
     assert figures["physics"]["pybullet"]["loaded"] and figures["physics"]["mujoco"]["loaded"]
-    obj = figures["per_object"][0]
-    # NaN figures are null with the reason beside them
-    assert obj["ae_points"] is None and "not recorded" in obj["ae_points_null_reason"]
-    assert obj["ae_model"] is None and obj["ae_model_null_reason"]
+    for obj in figures["per_object"]:  # a figure is a number, or null with the reason beside it
+        for key in ("ae", "ae_points", "ae_model", "translation_error"):
+            assert isinstance(obj[key], float) or (obj[key] is None and obj[f"{key}_null_reason"]), (key, obj)
 
     # -v: the chatter is shown, on stderr only; stdout stays one strict document
     proc = run_cli("-v", "eval-scene", str(scene), str(gt), "--seeds-per-class", "3", "--json")
