@@ -358,12 +358,64 @@ def _hull_pieces(mesh: trimesh.Trimesh, ground: float | None = None) -> list[tri
 
 
 #: An observed mesh (a scanned object with no CAD model) at most this large (m) collides as one convex
-#: hull; a larger one as the hulls of its connected components. Never CoACD: the scan is a partial,
+#: hull; a larger one as boxes over the grid cells its surface occupies. Never CoACD: the scan is a partial,
 #: open surface that changes with every map update, and CoACD took 18-48 s per small object on real
 #: scans (88-129 vertices: 20-49 pieces), every time its mesh changed.
 OBSERVED_HULL_MAX_EXTENT = 0.6
 #: Thickness (m) given to a flat observed mesh's box (a scan of one face has no volume).
 OBSERVED_MIN_THICKNESS = 0.01
+#: A large observed mesh collides as boxes over the grid cells its surface occupies: cells of at least
+#: this size (m), coarser until there are at most ``OBSERVED_MAX_CELLS`` of them.
+OBSERVED_CELL = 0.1
+OBSERVED_MAX_CELLS = 120
+
+
+def _surface_points(mesh: trimesh.Trimesh, spacing: float) -> NDArray[np.float64]:
+    """Vertices plus even samples (about one per ``spacing``^2 / 4) of an observed surface."""
+    v = np.asarray(mesh.vertices, np.float64)
+    count = int(min(20000, max(200, 4.0 * float(mesh.area) / (spacing * spacing))))
+    samples, _ = trimesh.sample.sample_surface_even(mesh, count, seed=0) if len(mesh.faces) else (v[:0], None)
+    return np.r_[v, np.asarray(samples, np.float64)]
+
+
+def _cell_boxes(mesh: trimesh.Trimesh, grounded: bool) -> tuple[CollisionShape, ...]:
+    """A large observed surface as boxes over the grid cells it occupies (convex pieces that follow a
+    concave scan: a table's top and legs, not their hull, which swallowed the chairs under it).
+
+    Each occupied cell gives the box of its surface points (at least ``OBSERVED_MIN_THICKNESS`` thick);
+    ``grounded``: one box per occupied column, from the mesh's lowest point to the column's top (a
+    movable object kept as its scan rests on its whole footprint). Boxes overlap by at most the
+    thickening, so their volumes and inertias add up."""
+    lo = np.asarray(mesh.bounds[0], np.float64)
+    cell = OBSERVED_CELL
+    pts = _surface_points(mesh, cell)
+    while True:
+        keys = np.floor((pts - lo) / cell).astype(np.int64)
+        if grounded:
+            keys[:, 2] = 0
+        uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+        if len(uniq) <= OBSERVED_MAX_CELLS:
+            break
+        cell *= 1.25
+    inv = inv.reshape(-1)
+    order = np.argsort(inv, kind="stable")
+    bounds = np.r_[0, np.cumsum(np.bincount(inv, minlength=len(uniq)))]
+    out = []
+    for k in range(len(uniq)):
+        p = pts[order[bounds[k]:bounds[k + 1]]]
+        c_lo = lo + uniq[k] * cell
+        b_lo = np.maximum(p.min(axis=0), c_lo)
+        b_hi = np.minimum(p.max(axis=0), c_lo + cell)
+        if grounded:  # the column: from the lowest point to its highest
+            b_lo[2], b_hi[2] = lo[2], p[:, 2].max()
+        # thin (a face seen edge-on or flat): thickened about its middle, a column upwards only (its
+        # bottom stays on the ground it rests on)
+        pad = np.maximum(OBSERVED_MIN_THICKNESS - (b_hi - b_lo), 0.0) / 2.0
+        up = pad.copy()
+        if grounded:
+            up[2], pad[2] = 2.0 * pad[2], 0.0
+        out.append(box_shape(b_lo - pad, b_hi + up))
+    return tuple(out)
 
 
 def _grounded(mesh: trimesh.Trimesh, z: float) -> trimesh.Trimesh:
@@ -375,8 +427,9 @@ def _grounded(mesh: trimesh.Trimesh, z: float) -> trimesh.Trimesh:
 
 
 def observed_collisions(mesh: trimesh.Trimesh, grounded: bool = False) -> tuple[CollisionShape, ...]:
-    """Collision shapes of an observed mesh: its convex hull (small), the hulls of its parts
-    (large), or its bounding box thickened to ``OBSERVED_MIN_THICKNESS`` when it is flat.
+    """Collision shapes of an observed mesh: its convex hull (small), boxes over the grid cells its
+    surface occupies (large: ``_cell_boxes``), or its bounding box thickened to
+    ``OBSERVED_MIN_THICKNESS`` when it is flat.
 
     ``grounded``: every hull reaches down to the mesh's lowest point (the hull of its vertices and
     of their drops to that height). A scan seen from one side, a chair's front legs and seat, would
@@ -394,7 +447,7 @@ def observed_collisions(mesh: trimesh.Trimesh, grounded: bool = False) -> tuple[
         except Exception:  # coplanar points: no solid hull
             pieces = []
     else:
-        pieces = _hull_pieces(mesh, float(lo[2]) if grounded else None)
+        return _cell_boxes(mesh, grounded)
     if pieces:
         return tuple(mesh_shape(p) for p in pieces)
     pad = np.maximum(OBSERVED_MIN_THICKNESS - (hi - lo), 0.0) / 2.0

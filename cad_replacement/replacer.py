@@ -19,6 +19,7 @@ once per library model (``GeometryCache``).
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import logging
 import time
@@ -43,6 +44,7 @@ from cad_replacement.observation import (
     clean_entity_points,
     front_direction_from_context,
 )
+from cad_replacement.observed_physics import settle_observed
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replace_object import CadSource, CandidateResult, ObjectReplacement, replace_object
 from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
@@ -233,8 +235,9 @@ def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: 
     mesh = entity.mesh().copy()
     mesh.apply_transform(np.linalg.inv(pose))
     # collides as its hull (``observed_collisions``): convex decomposition of a partial scan is slow and
-    # meaningless, and would run again at every map update; grounded, so a one-sided scan stands
-    link = Link("body", mesh, OBSERVED_RGBA, collisions=lambda: observed_collisions(mesh, grounded=True))
+    # meaningless, and would run again at every map update; a movable one grounded, so a one-sided scan stands
+    grounded = node.movable  # a fixed one (a table) keeps the space under it free
+    link = Link("body", mesh, OBSERVED_RGBA, collisions=lambda: observed_collisions(mesh, grounded=grounded))
     model = CadModel(node.class_name, f"observed_{node.id}", (link,), (), bounding_box_features(mesh),
                      source="observed")
     return PlacedObject(node.name, node.class_name, model, pose, parent=parent, support=support,
@@ -460,6 +463,11 @@ class CadReplacer:
             if parent != MAP_ROOT and parent not in placed:
                 parent = MAP_ROOT  # the parent could not be placed: the object stands on the map
             support = edge.joint if edge is not None and edge.joint in ("fixed", "floating") else "fixed"
+            mounted = support == "floating" and edge is not None and _hangs_on_wall(graph, edge)
+            if mounted:
+                # a wall carries nothing from below: an object the graph hangs on one (a screen, or its
+                # fallback for an object on an unmapped counter) is mounted there, not dropped in simulation
+                support = "fixed"
             obj: PlacedObject | None
             if node.category == LAYOUT:
                 obj = layout_object(node, parent, room_center)
@@ -471,7 +479,7 @@ class CadReplacer:
                                                      message="no geometry for this node"))
                     continue
                 cached = done[nid]
-                record = cached.record
+                record = copy.copy(cached.record)  # notes of this scene (mount, switches) stay out of the cache
                 obj = self._placed(node, cached.replacement, parent, support)
                 if obj is None:
                     obj = observed_mesh_object(node, entity, parent, support)
@@ -488,6 +496,9 @@ class CadReplacer:
                                    self._max_size(node.class_name))
                 if z is not None:
                     rest_on(obj, z)
+            if node.category != LAYOUT and mounted:
+                note = f"mounted on {parent} (a wall carries nothing from below): fixed joint"
+                record.message = "; ".join(m for m in (record.message, note) if m and m != note)
             record.pose = obj.pose.tolist()
             record.scale = obj.scale.tolist()
             record.joint_values = dict(obj.joint_values)
@@ -495,12 +506,14 @@ class CadReplacer:
             objects.append(obj)
             placed.add(obj.name)
             records.append(record)
+        _note_settled(records, settle_observed(objects, patch=False))
         scene = ReplacedScene(name or graph.name or "scene", objects, frame_id=graph.frame_id)
         scene.validate()
         t1 = time.perf_counter()
         if self.physical_check is not None:
             scene = self.physical_check(scene, alternatives)
             _note_switches(scene, records, alternatives)
+        _note_settled(records, settle_observed(scene.objects, drop=False))
         t2 = time.perf_counter()
         live = {n.id for n in graph.nodes.values()}
         for stale in set(self._results) - live:
@@ -600,6 +613,26 @@ def _note_switches(scene: ReplacedScene, records: list[ReplacementRecord],
 
 __all__ = ["CadReplacer", "PhysicalCheck", "ReplacementRecord", "ReplacementResult", "layout_object",
            "observed_mesh_object", "rest_on", "support_height"]
+
+
+def _note_settled(records: list[ReplacementRecord], changes: Mapping[str, Mapping[str, int]]) -> None:
+    """Say in the records what ``settle_observed`` changed on objects kept as their observed mesh."""
+    by_name = {r.name: r for r in records}
+    for name, change in changes.items():
+        rec = by_name.get(name)
+        parts = [f"{change['dropped']} pieces inside other objects dropped" if change["dropped"] else "",
+                 f"{change['patches']} support patches" if change["patches"] else ""]
+        note = ", ".join(p for p in parts if p)
+        if rec is not None and note:
+            rec.message = "; ".join(m for m in (rec.message, f"observed mesh: {note}") if m)
+
+
+def _hangs_on_wall(graph: ContactGraph, edge: SupportEdge) -> bool:
+    """Whether a support edge hangs its child on a wall (a layout wall parent, no upward plane)."""
+    parent = graph.nodes.get(edge.parent_id)
+    if parent is None or parent.category != LAYOUT or parent.class_name != "wall":
+        return False
+    return edge.plane is None or edge.plane.normal[2] < 0.9
 
 
 def _observation_digest(obs: ObjectObservation | None) -> str:

@@ -149,3 +149,61 @@ def test_low_coverage_of_the_visible_model_surface_is_rejected():
     chair = _candidate("chair/b", "chair", 0.008, cov=0.1)
     verdict = judge(_replacement([chair]), _chair_observation(), cfg)
     assert verdict.accepted == [] and verdict.reason.startswith("coverage 10 %")
+
+
+# ----------------------------------------------------------------------------- observed meshes in a simulator
+
+
+def _observed_object(nid: int, name: str, class_name: str, mesh: trimesh.Trimesh, movable: bool, parent: str = "map"):
+    from cad_replacement.replacer import observed_mesh_object
+    from recon_core.contact_graph import GraphNode
+    from recon_core.geometry.box_fit import fit_gravity_box
+
+    node = GraphNode(nid, name, class_name, "object", box=fit_gravity_box(np.asarray(mesh.vertices)), movable=movable)
+    obj = observed_mesh_object(node, Entity.from_mesh(nid, name, class_name, mesh), parent,
+                               "floating" if movable else "fixed")
+    assert obj is not None
+    return obj
+
+
+def _world_boxes(obj):
+    from cad_replacement.observed_physics import _world_pieces
+
+    return _world_pieces(obj)
+
+
+def test_what_rests_on_an_observed_mesh_gets_a_support_patch_where_the_scan_has_a_hole():
+    from cad_replacement.observed_physics import settle_observed
+
+    # a table top scanned around the cup standing on it: no surface under the cup
+    left = trimesh.creation.box([0.5, 0.8, 0.03]).apply_translation([-0.35, 0.0, 0.735])
+    right = trimesh.creation.box([0.5, 0.8, 0.03]).apply_translation([0.35, 0.0, 0.735])
+    legs = [trimesh.creation.box([0.05, 0.05, 0.72]).apply_translation([x, y, 0.36]) for x in (-0.55, 0.55)
+            for y in (-0.35, 0.35)]
+    table = _observed_object(2, "table_2", "table", trimesh.util.concatenate([left, right, *legs]), False)
+    cup = _observed_object(3, "cup_3", "cup", trimesh.creation.cylinder(0.04, 0.1).apply_translation(
+        [0.0, 0.0, 0.8]), True, parent="table_2")
+    cup.pose[2, 3] = 0.75  # placed on the top's height
+    changes = settle_observed([table, cup], drop=False)
+    assert changes == {"table_2": {"dropped": 0, "patches": 1}}
+    patch = _world_boxes(table)[-1]
+    assert patch.bounds[1][2] == pytest.approx(0.75, abs=1e-6)
+    assert np.all(patch.bounds[0][:2] <= [-0.039, -0.039]) and np.all(patch.bounds[1][:2] >= [0.039, 0.039])
+
+
+def test_pieces_of_a_movable_scan_inside_another_object_are_dropped_never_all():
+    from cad_replacement.observed_physics import _inside, _probes, settle_observed
+
+    wall = _observed_object(1, "cabinet_1", "cabinet", trimesh.creation.box([0.3, 2.0, 1.0]).apply_translation(
+        [0.75, 0.0, 0.5]), False)
+    # a chair whose mask bled 20 cm into the cabinet beside it
+    chair = trimesh.creation.box([0.5, 0.5, 0.9]).apply_translation([0.0, 0.0, 0.45])
+    bleed = trimesh.creation.box([0.6, 0.3, 0.04]).apply_translation([0.55, 0.0, 0.5])
+    mover = _observed_object(2, "chair_2", "chair", trimesh.util.concatenate([chair, bleed]), True)
+    before = len(mover.model.links[0].collisions)
+    changes = settle_observed([wall, mover], patch=False)
+    assert changes["chair_2"]["dropped"] > 0
+    kept = _world_boxes(mover)
+    assert 0 < len(kept) < before
+    for piece in kept:
+        assert not any(np.any(_inside(_probes(piece, 0.01), w)) for w in _world_boxes(wall))

@@ -1,0 +1,138 @@
+"""Objects kept as their observed mesh, made fit for a simulator (issue 22, item 5).
+
+An object no CAD model explains is exported as its scan (``replacer.observed_mesh_object``), which
+collides as convex pieces (``collision.observed_collisions``). A real scan is not a clean solid:
+
+* the detector's mask bleeds onto what lies behind or under the object (a chair's mask carries a
+  strip of the wall and of the table top it stands at), so some pieces sit inside the wall slab or
+  the table: a simulator throws the object out of them;
+* what stands on the object hides the surface under it (a cup on a table scanned as its
+  observation: no table top under the cup), so the child falls through.
+
+``settle_observed(objects)`` runs on the placed scene: before the physical check, a movable observed
+object drops the pieces that reach more than ``PIECE_DEPTH`` into another object (they are that
+object's surface), never all of them; after it, every observed object gets a thin support patch
+under each object resting on it, at the height the child ended up.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+import trimesh
+from numpy.typing import NDArray
+
+from cad_replacement.cad.model import Link
+from cad_replacement.collision import box_shape, shape_mesh
+from cad_replacement.scene_model import PlacedObject
+from recon_core.kinematic_tree import CollisionShape
+
+#: A piece of a scan reaching deeper than this (m) into another object belongs to that object.
+PIECE_DEPTH = 0.01
+#: Spacing (m) of the probe points along a piece's edges (thinner slabs than twice this may be missed).
+EDGE_STEP = 0.005
+#: Thickness (m) of the support patch under an object resting on an observed mesh.
+PATCH_THICKNESS = 0.02
+
+
+def _world_pieces(obj: PlacedObject) -> list[trimesh.Trimesh]:
+    """Every collision piece of ``obj`` as a closed convex mesh in the map."""
+    out = []
+    poses = obj.link_poses()
+    for link in obj.model.links:
+        for shape in link.collisions or ():
+            m = shape_mesh(shape)
+            m.apply_transform(poses[link.name])
+            out.append(m)
+    return out
+
+
+def _inside(points: NDArray[np.float64], piece: trimesh.Trimesh) -> NDArray[np.bool_]:
+    """Which points lie inside a closed convex mesh (behind every face plane)."""
+    if len(piece.faces) == 0:
+        return np.zeros(len(points), dtype=bool)
+    n = np.asarray(piece.face_normals, np.float64)
+    v0 = np.asarray(piece.triangles[:, 0], np.float64)
+    d = np.einsum("pfj,fj->pf", points[:, None, :] - v0[None, :, :], n)
+    return np.all(d < 0.0, axis=1)
+
+
+def _probes(piece: trimesh.Trimesh, depth: float) -> NDArray[np.float64]:
+    """The piece's vertices pulled ``depth`` towards its centre, and the centre: inside another solid
+    only when the piece reaches deeper than about ``depth`` into it."""
+    v = np.asarray(piece.vertices, np.float64)
+    c = v.mean(axis=0)
+    r = v - c
+    length = np.linalg.norm(r, axis=1, keepdims=True)
+    pulled = c + r * np.maximum(length - depth, 0.0) / np.maximum(length, 1e-12)
+    # and points every ``EDGE_STEP`` along its edges: a thin slab (a table top) crossing a tall column
+    # misses every corner
+    edges = np.asarray(piece.edges_unique, np.int64)
+    out = [pulled, c[None, :]]
+    lengths = np.linalg.norm(pulled[edges[:, 1]] - pulled[edges[:, 0]], axis=1)
+    for (i, j), n in zip(edges, np.ceil(lengths / EDGE_STEP).astype(np.int64), strict=True):
+        if n > 1:
+            t = np.linspace(0.0, 1.0, n + 1)[1:-1, None]
+            out.append(pulled[i] * (1.0 - t) + pulled[j] * t)
+    return np.concatenate(out)
+
+
+def _overlap(a: trimesh.Trimesh, b: trimesh.Trimesh) -> bool:
+    return bool(np.all(a.bounds[0] <= b.bounds[1]) and np.all(b.bounds[0] <= a.bounds[1]))
+
+
+def settle_observed(objects: Sequence[PlacedObject], *, drop: bool = True,
+                    patch: bool = True) -> dict[str, dict[str, int]]:
+    """Drop bled pieces of movable observed objects (``drop``) and add support patches (``patch``: after
+    the physical check, which may still move what rests on them); returns what changed per object
+    (``dropped`` pieces, ``patches``). Objects are edited in place (their ``model``)."""
+    observed = [o for o in objects if o.model.source == "observed" and len(o.model.links) == 1]
+    if not observed:
+        return {}
+    world = {o.name: _world_pieces(o) for o in objects}
+    changes: dict[str, dict[str, int]] = {}
+    for obj in observed:
+        link = obj.model.links[0]
+        shapes: list[CollisionShape] = list(link.collisions or ())
+        kept = shapes
+        dropped = 0
+        if drop and obj.movable and shapes:
+            others = [p for o in objects if o.name != obj.name and o.parent != obj.name for p in world[o.name]]
+            pieces = world[obj.name]
+            keep = []
+            for shape, piece in zip(shapes, pieces, strict=True):
+                probes = _probes(piece, PIECE_DEPTH)
+                hit = any(_overlap(piece, other) and bool(np.any(_inside(probes, other))) for other in others)
+                if not hit:
+                    keep.append(shape)
+            if keep and len(keep) < len(shapes):
+                dropped = len(shapes) - len(keep)
+                kept = keep
+        patches = [_patch(obj, child) for child in objects if child.parent == obj.name] if patch else []
+        patches_ok = [p for p in patches if p is not None]
+        if not dropped and not patches_ok:
+            continue
+        new_link = Link(link.name, link.mesh, link.color, collisions=tuple(kept) + tuple(patches_ok),
+                        inertial=link.inertial)
+        obj.model = replace(obj.model, links=(new_link,))
+        changes[obj.name] = {"dropped": dropped, "patches": len(patches_ok)}
+    return changes
+
+
+def _patch(parent: PlacedObject, child: PlacedObject) -> CollisionShape | None:
+    """A thin box in ``parent``'s link frame under ``child``'s footprint, its top where the child's
+    lowest point is."""
+    meshes = [m for m in child.model.posed_link_meshes(child.joint_values).values() if len(m.vertices)]
+    if not meshes:
+        return None
+    v = np.concatenate([np.asarray(m.vertices, np.float64) for m in meshes]) @ child.pose[:3, :3].T + child.pose[:3, 3]
+    inv = np.linalg.inv(parent.pose)
+    local = v @ inv[:3, :3].T + inv[:3, 3]
+    lo, hi = local.min(axis=0), local.max(axis=0)
+    bottom = float(lo[2])
+    return box_shape([lo[0], lo[1], bottom - PATCH_THICKNESS], [hi[0], hi[1], bottom])
+
+
+__all__ = ["PATCH_THICKNESS", "PIECE_DEPTH", "settle_observed"]
