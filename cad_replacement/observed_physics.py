@@ -42,7 +42,12 @@ def _world_pieces(obj: PlacedObject) -> list[trimesh.Trimesh]:
     out = []
     poses = obj.link_poses()
     for link in obj.model.links:
-        for shape in link.collisions or ():
+        shapes = link.collisions
+        if shapes is None:  # collides as its visual mesh (layout slabs): its hull
+            if len(link.mesh.faces):
+                out.append(link.mesh.convex_hull.copy().apply_transform(poses[link.name]))
+            continue
+        for shape in shapes:
             m = shape_mesh(shape)
             m.apply_transform(poses[link.name])
             out.append(m)

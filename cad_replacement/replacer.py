@@ -506,6 +506,9 @@ class CadReplacer:
             objects.append(obj)
             placed.add(obj.name)
             records.append(record)
+        for obj in objects:
+            if obj.class_name == "floor" and obj.model.source == "box":
+                _floor_under_children(obj, objects)
         _note_settled(records, settle_observed(objects, patch=False))
         scene = ReplacedScene(name or graph.name or "scene", objects, frame_id=graph.frame_id)
         scene.validate()
@@ -615,6 +618,34 @@ __all__ = ["CadReplacer", "PhysicalCheck", "ReplacementRecord", "ReplacementResu
            "observed_mesh_object", "rest_on", "support_height"]
 
 
+#: Margin (m) by which a floor slab reaches beyond the footprint of what stands on it.
+FLOOR_MARGIN = 0.05
+
+
+def _floor_under_children(floor: PlacedObject, objects: Sequence[PlacedObject]) -> None:
+    """Grow a floor slab to reach under everything standing on it: the mapped floor ends where the
+    camera stopped seeing it, and a chair beyond that edge tipped off the slab in simulation."""
+    inv = np.linalg.inv(floor.pose)
+    size = np.asarray(floor.model.size, dtype=np.float64)
+    lo, hi = -0.5 * size[:2], 0.5 * size[:2]
+    new_lo, new_hi = lo.copy(), hi.copy()
+    for child in objects:
+        if child.parent != floor.name:
+            continue
+        for mesh in child.model.posed_link_meshes(child.joint_values).values():
+            if not len(mesh.vertices):
+                continue
+            v = np.asarray(mesh.vertices, np.float64) @ child.pose[:3, :3].T + child.pose[:3, 3]
+            local = v @ inv[:3, :3].T + inv[:3, 3]
+            new_lo = np.minimum(new_lo, local[:, :2].min(axis=0) - FLOOR_MARGIN)
+            new_hi = np.maximum(new_hi, local[:, :2].max(axis=0) + FLOOR_MARGIN)
+    if np.allclose(new_lo, lo) and np.allclose(new_hi, hi):
+        return
+    centre = 0.5 * (new_lo + new_hi)
+    floor.model = box_model(floor.class_name, [*(new_hi - new_lo), size[2]])
+    floor.pose[:3, 3] += floor.pose[:3, :2] @ centre
+
+
 def _note_settled(records: list[ReplacementRecord], changes: Mapping[str, Mapping[str, int]]) -> None:
     """Say in the records what ``settle_observed`` changed on objects kept as their observed mesh."""
     by_name = {r.name: r for r in records}
@@ -628,11 +659,11 @@ def _note_settled(records: list[ReplacementRecord], changes: Mapping[str, Mappin
 
 
 def _hangs_on_wall(graph: ContactGraph, edge: SupportEdge) -> bool:
-    """Whether a support edge hangs its child on a wall (a layout wall parent, no upward plane)."""
+    """Whether a support edge hangs its child on a wall. Stage 4 models a wall as a vertical slab, so it
+    carries nothing from below, whatever plane of the mapped wall (a shelf strip, a counter's edge
+    seen with it) the graph found under the child."""
     parent = graph.nodes.get(edge.parent_id)
-    if parent is None or parent.category != LAYOUT or parent.class_name != "wall":
-        return False
-    return edge.plane is None or edge.plane.normal[2] < 0.9
+    return parent is not None and parent.category == LAYOUT and parent.class_name == "wall"
 
 
 def _observation_digest(obs: ObjectObservation | None) -> str:

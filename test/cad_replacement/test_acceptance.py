@@ -207,3 +207,24 @@ def test_pieces_of_a_movable_scan_inside_another_object_are_dropped_never_all():
     assert 0 < len(kept) < before
     for piece in kept:
         assert not any(np.any(_inside(_probes(piece, 0.01), w)) for w in _world_boxes(wall))
+
+
+def test_the_floor_slab_reaches_under_what_stands_beyond_the_mapped_floor():
+    from cad_replacement.layout_models import box_model
+    from cad_replacement.replacer import _floor_under_children
+    from cad_replacement.scene_model import PlacedObject
+
+    pose = np.eye(4)
+    pose[2, 3] = -0.1
+    floor = PlacedObject("floor", "floor", box_model("floor", [2.0, 2.0, 0.1]), pose)
+    chair_mesh = trimesh.creation.box([0.5, 0.5, 0.9]).apply_translation([0.0, 0.0, 0.45])
+    chair = _observed_object(5, "chair_5", "chair", chair_mesh, True, parent="floor")
+    chair.pose[:3, 3] = [1.1, 0.0, 0.0]  # half beyond the mapped floor's edge at x = 1
+    inside = PlacedObject("floor_2", "floor", box_model("floor", [2.0, 2.0, 0.1]), pose.copy())
+    _floor_under_children(floor, [floor, chair])
+    lo = floor.pose[:3, 3] - 0.5 * floor.model.size
+    hi = floor.pose[:3, 3] + 0.5 * floor.model.size
+    assert hi[0] >= 1.1 + 0.25 + 0.05 - 1e-9 and lo[0] == pytest.approx(-1.0)
+    assert floor.model.size[2] == pytest.approx(0.1) and floor.pose[2, 3] == pytest.approx(-0.1)
+    _floor_under_children(inside, [inside])  # nothing on it: unchanged
+    assert np.allclose(inside.model.size, [2.0, 2.0, 0.1])
