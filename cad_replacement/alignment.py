@@ -1066,12 +1066,21 @@ def box_start(
 
 @dataclass(frozen=True)
 class AlignmentError:
-    """AE terms (m): ``ae`` two-sided RMS, ``ae_points`` observed -> CAD, ``ae_model`` CAD -> observed."""
+    """AE terms (m): ``ae`` two-sided RMS, ``ae_points`` observed -> CAD (the paper's AE, Sec. 4.3),
+    ``ae_model`` CAD -> observed; ``visible_fraction`` of the CAD samples counted in ``ae_model``.
+
+    Coverage (``acceptance``): ``coverage`` is the share of the CAD samples counted in ``ae_model``
+    that lie within ``cfg.coverage_distance`` of an observed surfel; ``view_coverage`` the same
+    share of every CAD sample a camera along the observation's viewing direction would see (not
+    only the sides the observation covers: an oversized model whose front is four times the
+    observed front does not escape it). NaN when no sample counts."""
 
     ae: float
     ae_points: float
     ae_model: float
     visible_fraction: float
+    coverage: float = float("nan")
+    view_coverage: float = float("nan")
 
 
 #: Cosine above which an observed surfel's normal is compatible with a CAD sample's normal.
@@ -1151,24 +1160,29 @@ def alignment_error(
         normals_map, self_visible, prepared.bin_area, sample_area, cfg.visible_min_coverage,
         samples_map=samples_map, face_area=prepared.face_area,
     )
-    if prepared.view_dir is not None and np.any(vis):
+    # In view (coverage): every self-visible sample a camera along the viewing direction would see.
+    in_view = self_visible.copy()
+    if prepared.view_dir is not None and np.any(in_view):
         # Partial view: keep samples an orthographic camera along the viewing direction would see
         # (rays from far away towards the sample must reach it first), so occluded back legs or
         # a shelf's inside are not counted as missing data.
         v = prepared.view_dir
-        idx = np.flatnonzero(vis)
+        idx = np.flatnonzero(in_view)
         facing = normals_map[idx] @ v > 0.0
         origins = samples_map[idx] + VIEW_DISTANCE * v
         rays = np.c_[origins, np.broadcast_to(-v, origins.shape)].astype(np.float32)
         t_hit = scene.cast_rays(o3c.Tensor(rays))["t_hit"].numpy()
         seen = facing & (t_hit >= VIEW_DISTANCE - 5e-3)
-        vis = vis.copy()
-        vis[idx[~seen]] = False
+        in_view[idx[~seen]] = False
+        vis = vis & in_view
     d_obs = scene.compute_distance(o3c.Tensor(pts.astype(np.float32))).numpy().astype(np.float64)
-    d_mod = surfel_distance(prepared, samples_map[vis], normals_map[vis])
+    d_view = surfel_distance(prepared, samples_map[in_view], normals_map[in_view])
+    d_mod = d_view[vis[in_view]]
     both = np.concatenate([d_obs, d_mod])
     rms = lambda v: float(np.sqrt(np.mean(v * v))) if len(v) else 0.0  # noqa: E731
-    return AlignmentError(rms(both), rms(d_obs), rms(d_mod), float(vis.mean()) if len(vis) else 0.0)
+    near = lambda v: float(np.mean(v <= cfg.coverage_distance)) if len(v) else float("nan")  # noqa: E731
+    return AlignmentError(rms(both), rms(d_obs), rms(d_mod), float(vis.mean()) if len(vis) else 0.0,
+                          near(d_mod), near(d_view))
 
 
 def posed_scene(mesh: trimesh.Trimesh, placement: Placement) -> o3d.t.geometry.RaycastingScene:

@@ -342,13 +342,14 @@ def _coacd_module() -> Any:
     return coacd
 
 
-def _hull_pieces(mesh: trimesh.Trimesh) -> list[trimesh.Trimesh]:
-    """Convex hull of each connected component (fallback without CoACD)."""
+def _hull_pieces(mesh: trimesh.Trimesh, ground: float | None = None) -> list[trimesh.Trimesh]:
+    """Convex hull of each connected component (fallback without CoACD); with ``ground``, of each
+    component and its drop to that height (``observed_collisions``)."""
     parts = mesh.split(only_watertight=False) if len(mesh.faces) else []
     out = []
     for part in parts or [mesh]:
         try:
-            hull = part.convex_hull
+            hull = (part if ground is None else _grounded(part, ground)).convex_hull
         except Exception:  # flat/degenerate component: no solid hull, nothing to collide with
             continue
         if len(hull.faces) and hull.volume > 0.0:
@@ -365,22 +366,35 @@ OBSERVED_HULL_MAX_EXTENT = 0.6
 OBSERVED_MIN_THICKNESS = 0.01
 
 
-def observed_collisions(mesh: trimesh.Trimesh) -> tuple[CollisionShape, ...]:
+def _grounded(mesh: trimesh.Trimesh, z: float) -> trimesh.Trimesh:
+    """``mesh`` with a copy of its vertices dropped to height ``z`` (hull input: a prism to the ground)."""
+    v = np.asarray(mesh.vertices, np.float64)
+    low = v.copy()
+    low[:, 2] = z
+    return trimesh.Trimesh(np.r_[v, low], np.asarray(mesh.faces), process=False)
+
+
+def observed_collisions(mesh: trimesh.Trimesh, grounded: bool = False) -> tuple[CollisionShape, ...]:
     """Collision shapes of an observed mesh: its convex hull (small), the hulls of its parts
-    (large), or its bounding box thickened to ``OBSERVED_MIN_THICKNESS`` when it is flat."""
+    (large), or its bounding box thickened to ``OBSERVED_MIN_THICKNESS`` when it is flat.
+
+    ``grounded``: every hull reaches down to the mesh's lowest point (the hull of its vertices and
+    of their drops to that height). A scan seen from one side, a chair's front legs and seat, would
+    otherwise stand on an edge and tip over; a grounded convex piece rests on a footprint that holds
+    its own centre of mass, so an object kept as its observed mesh stays where it was seen."""
     if len(mesh.faces) == 0:
         return ()
     lo, hi = np.asarray(mesh.bounds[0], np.float64), np.asarray(mesh.bounds[1], np.float64)
     pieces: list[trimesh.Trimesh] = []
     if float(np.max(hi - lo)) <= OBSERVED_HULL_MAX_EXTENT:
         try:
-            hull = mesh.convex_hull
+            hull = (_grounded(mesh, float(lo[2])) if grounded else mesh).convex_hull
             if len(hull.faces) and hull.volume > 1e-12:
                 pieces = [hull]
         except Exception:  # coplanar points: no solid hull
             pieces = []
     else:
-        pieces = _hull_pieces(mesh)
+        pieces = _hull_pieces(mesh, float(lo[2]) if grounded else None)
     if pieces:
         return tuple(mesh_shape(p) for p in pieces)
     pad = np.maximum(OBSERVED_MIN_THICKNESS - (hi - lo), 0.0) / 2.0

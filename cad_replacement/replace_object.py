@@ -355,6 +355,16 @@ def _align_ours(
         full_count[m.entry.key] = full_count.get(m.entry.key, 0) + 1
         screened_x[id(m)] = x
         results.append(fitter.fit(m, geom, x, cost, nfev))
+    if cfg.detected_class_fit and not any(r.stage == "full" and r.class_name == obs.class_name for r in results):
+        # Only other classes' models reached the full fit (a chair's partial box ranks sofa orientations
+        # first): the detected class's best screened candidate gets one too, so the class margin of the
+        # acceptance step compares two fitted models rather than a fitted one against nothing.
+        for _score, m, x, cost, nfev in screened:
+            if m.entry.class_name == obs.class_name:
+                screened_x[id(m)] = x
+                results = [r for r in results if r.match is not m]
+                results.append(fitter.fit(m, geoms[m.entry.key], x, cost, nfev))
+                break
     if cfg.layout_search:
         results.extend(_layout_search(results, screened_x, cache, fitter, cfg))
     timings["align"] = time.perf_counter() - t - fitter.t_art

@@ -30,6 +30,8 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from cad_replacement.acceptance import ae_limit, fit_figures, judge, placed_error, rejection
+from cad_replacement.alignment import PreparedObservation
 from cad_replacement.cad.model import CadModel, Link, bounding_box_features
 from cad_replacement.collision import observed_collisions
 from cad_replacement.geometry_cache import GeometryCache, library_store
@@ -42,7 +44,7 @@ from cad_replacement.observation import (
     front_direction_from_context,
 )
 from cad_replacement.replace_config import CadReplacementConfig
-from cad_replacement.replace_object import CadSource, ObjectReplacement, replace_object
+from cad_replacement.replace_object import CadSource, CandidateResult, ObjectReplacement, replace_object
 from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
 from cad_replacement.workers import ReplaceWorkers, open3d_threads, resolve_workers
 from recon_core.classes import ClassTable, UnknownClassError, load_class_table
@@ -82,6 +84,16 @@ class ReplacementRecord:
     timings: dict[str, float] = field(default_factory=dict)
     message: str = ""
     reused: bool = False
+    #: Why the object is kept as its observed mesh although it has CAD candidates ("AE 54 mm > limit
+    #: 30 mm (chair/p3)"; ``acceptance``); "" when a CAD model stands for it.
+    reason: str = ""
+    #: The detected class when a model of another class replaced it (``acceptance``: class margin).
+    substituted_from: str = ""
+    #: Fit quality of the exported model (or of the rejected best candidate): ``ae`` two-sided,
+    #: ``ae_points`` the paper's AE, ``ae_model``, ``coverage``, ``view_coverage``, ``ae_limit`` (m or shares).
+    fit: dict[str, Any] = field(default_factory=dict)
+    #: The class margin's comparison (detected vs other class best AE), when both were fitted.
+    class_comparison: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -103,6 +115,8 @@ class _Cached:
     key: tuple[Any, ...]
     replacement: ObjectReplacement | None
     record: ReplacementRecord
+    #: The observation the replacement was made for (the physical check's backups are judged on it).
+    obs: ObjectObservation | None = None
 
 
 @dataclass
@@ -219,8 +233,8 @@ def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: 
     mesh = entity.mesh().copy()
     mesh.apply_transform(np.linalg.inv(pose))
     # collides as its hull (``observed_collisions``): convex decomposition of a partial scan is slow and
-    # meaningless, and would run again at every map update
-    link = Link("body", mesh, OBSERVED_RGBA, collisions=lambda: observed_collisions(mesh))
+    # meaningless, and would run again at every map update; grounded, so a one-sided scan stands
+    link = Link("body", mesh, OBSERVED_RGBA, collisions=lambda: observed_collisions(mesh, grounded=True))
     model = CadModel(node.class_name, f"observed_{node.id}", (link,), (), bounding_box_features(mesh),
                      source="observed")
     return PlacedObject(node.name, node.class_name, model, pose, parent=parent, support=support,
@@ -326,16 +340,35 @@ class CadReplacer:
             raise outcome
         else:
             replacement = outcome
-            if replacement.model is None and replacement.chosen is not None:  # came from a worker
-                replacement.model = self.cache.get(replacement.chosen.match.entry).model
             record.timings = dict(replacement.timings)
             record.message = replacement.message
+            assert job.obs is not None
+            verdict = judge(replacement, job.obs, self.config)
             record.candidates = [
                 {"cad_id": c.key, "class_name": c.class_name, "matching_error": c.matching_error,
                  "alignment_error": c.ae.ae, "score": c.score, "stage": c.stage, "scale": c.scale.tolist(),
-                 "yaw": c.yaw}
-                for c in replacement.candidates]
-        result = _Cached(job.key, replacement, record)
+                 "yaw": c.yaw, **{k: v for k, v in fit_figures(c).items() if k != "ae"},
+                 "accepted": not why, "rejected": why}
+                for c, why in zip(replacement.candidates, verdict.rejections, strict=True)]
+            record.reason = verdict.reason
+            record.substituted_from = verdict.substituted_from
+            record.class_comparison = verdict.class_comparison
+            shown = verdict.accepted[0] if verdict.accepted else next(
+                (c for c in replacement.candidates if c.stage == "full"), None)
+            if shown is not None:
+                record.fit = {**fit_figures(shown), "cad_id": shown.key, "ae_limit": verdict.ae_limit}
+                record.alignment_error = record.fit["ae"]
+                record.matching_error = float(shown.matching_error)
+            # Only accepted candidates may be placed, as the choice or as the physical check's backups;
+            # screened-only ones of the chosen class follow as backups the check judges when it asks for
+            # them (``_RankedAlternatives``: their AE at the screened placement, then the gate).
+            replacement.candidates = verdict.accepted + verdict.backups if verdict.accepted else []
+            replacement.chosen = verdict.accepted[0] if verdict.accepted else None
+            replacement.model = None if replacement.chosen is None else \
+                self.cache.get(replacement.chosen.match.entry).model
+            if verdict.reason and record.candidates:
+                record.message = "; ".join(m for m in (record.message, f"observed mesh kept: {verdict.reason}") if m)
+        result = _Cached(job.key, replacement, record, job.obs)
         self._results[node.id] = result
         return result
 
@@ -444,7 +477,8 @@ class CadReplacer:
                     obj = observed_mesh_object(node, entity, parent, support)
                     record.kind = "observed_mesh"
                 elif cached.replacement is not None:
-                    alternatives[obj.name] = _RankedAlternatives(self, node, cached.replacement, parent, support)
+                    alternatives[obj.name] = _RankedAlternatives(self, node, cached.replacement, parent, support,
+                                                                 cached.obs)
             if obj is None:
                 record.kind = "skipped"
                 records.append(record)
@@ -466,6 +500,7 @@ class CadReplacer:
         t1 = time.perf_counter()
         if self.physical_check is not None:
             scene = self.physical_check(scene, alternatives)
+            _note_switches(scene, records, alternatives)
         t2 = time.perf_counter()
         live = {n.id for n in graph.nodes.values()}
         for stale in set(self._results) - live:
@@ -478,7 +513,10 @@ class CadReplacer:
         """The ``index``-th ranked candidate of ``rep`` as a placed object (None when there is none)."""
         if rep is None or index >= len(rep.candidates):
             return None
-        cand = rep.candidates[index]
+        return self._placed_candidate(node, rep.candidates[index], parent, support)
+
+    def _placed_candidate(self, node: GraphNode, cand: CandidateResult, parent: str, support: str) -> PlacedObject:
+        """One candidate as a placed object."""
         model = self.cache.get(cand.match.entry).model.scaled(cand.scale)
         return PlacedObject(node.name, cand.class_name, model, cand.pose.copy(), parent=parent, support=support,
                             movable=node.movable, entity_id=node.id, joint_values=dict(cand.joint_values),
@@ -493,9 +531,13 @@ class _RankedAlternatives(Sequence[PlacedObject]):
     """
 
     def __init__(self, replacer: CadReplacer, node: GraphNode, rep: ObjectReplacement, parent: str,
-                 support: str) -> None:
+                 support: str, obs: ObjectObservation | None = None) -> None:
         self._args = (replacer, node, rep, parent, support)
+        self._obs = obs
+        self._prepared: PreparedObservation | None = None
         self._built: dict[int, PlacedObject | None] = {}
+        #: The candidate behind each built alternative (a screened one with its AE measured where it is placed).
+        self.built_candidates: dict[int, CandidateResult] = {}
         self._len = max(len(rep.candidates) - 1, 0)
         #: selection scores (lower is better) of the choice and of each alternative: how much worse a
         #: backup fits, for checks that trade fit for consistency (``physical_check.fit_supports``)
@@ -510,11 +552,50 @@ class _RankedAlternatives(Sequence[PlacedObject]):
             raise IndexError(index)
         if index not in self._built:
             replacer, node, rep, parent, support = self._args
-            self._built[index] = replacer._placed(node, rep, parent, support, index + 1)
+            listed = rep.candidates[index + 1]
+            cand = listed if listed.stage == "full" else self._judged(listed)
+            if cand is None:  # fails the gate: the first choice again (no switch can come of it)
+                self._built[index] = replacer._placed_candidate(node, rep.candidates[0], parent, support)
+            else:
+                self._built[index] = replacer._placed(node, rep, parent, support, index + 1)
+                self.built_candidates[index] = cand
         obj = self._built[index]
         if obj is None:  # pragma: no cover - every ranked candidate has a model
             raise IndexError(index)
         return obj
+
+    def _judged(self, cand: CandidateResult) -> CandidateResult | None:
+        """A screened-only backup with its AE where it would be placed, or None when it fails the gate."""
+        replacer = self._args[0]
+        if self._obs is None:
+            return None
+        if self._prepared is None:
+            self._prepared = PreparedObservation.build(self._obs, replacer.config)
+        judged = placed_error(self._prepared, cand, replacer.cache.get(cand.match.entry), replacer.config)
+        ok = not replacer.config.accept_gate or not rejection(judged, ae_limit(self._obs, replacer.config),
+                                                                 replacer.config)
+        return judged if ok else None
+
+
+def _note_switches(scene: ReplacedScene, records: list[ReplacementRecord],
+                   alternatives: Mapping[str, Sequence[PlacedObject]]) -> None:
+    """Records of objects the physical check gave another candidate name it, with its fit figures."""
+    by_name = {r.name: r for r in records}
+    for obj in scene:
+        alts = alternatives.get(obj.name)
+        record = by_name.get(obj.name)
+        if not isinstance(alts, _RankedAlternatives) or record is None:
+            continue
+        for index, cand in alts.built_candidates.items():
+            built = alts._built.get(index)
+            if built is not None and built.model is obj.model:
+                first = record.cad_id
+                record.cad_id = cand.key
+                record.fit = {**fit_figures(cand), "cad_id": cand.key, "ae_limit": record.fit.get("ae_limit")}
+                record.alignment_error = record.fit["ae"]
+                record.message = "; ".join(m for m in (record.message, f"physical check: {first} -> {cand.key}")
+                                           if m)
+                break
 
 
 __all__ = ["CadReplacer", "PhysicalCheck", "ReplacementRecord", "ReplacementResult", "layout_object",

@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import codecs
+import contextlib
 import logging
+import os
 import sys
+import tempfile
+from pathlib import Path
 
 from scene_recon import __version__
 from scene_recon.commands import COMMANDS
@@ -36,9 +41,13 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     from recon_core.errors import SceneReconError
 
+    _tolerate_undecodable_paths()
     try:
-        return int(args.func(args) or 0)
-    except (SceneReconError, FileExistsError, FileNotFoundError) as exc:
+        check_output_folder(args)
+        with _quiet_native_output(args):
+            return int(args.func(args) or 0)
+    except (SceneReconError, FileExistsError, FileNotFoundError, PermissionError, NotADirectoryError,
+            IsADirectoryError) as exc:
         # what the user must fix, in one line (the error family says where: input, config, model, storage)
         if args.debug:
             raise
@@ -50,6 +59,66 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+
+
+def _escape_undecodable(exc: UnicodeError) -> tuple[str, int]:
+    """Codec error handler: a byte that was not UTF-8 in a path (a surrogate escape) as ``\\xNN``,
+    anything else unencodable as ``\\uNNNN`` (backslashreplace)."""
+    if not isinstance(exc, UnicodeEncodeError):
+        raise exc
+    bad = exc.object[exc.start:exc.end]
+    return "".join(f"\\x{ord(c) - 0xDC00:02x}" if 0xDC80 <= ord(c) <= 0xDCFF else c.encode(
+        "ascii", "backslashreplace").decode("ascii") for c in bad), exc.end
+
+
+def _tolerate_undecodable_paths() -> None:
+    """A path with bytes that are not UTF-8 (kept by Python as surrogate escapes) is printed with them
+    escaped (\\xNN) instead of ending the command with UnicodeEncodeError (PYTHONIOENCODING=utf-8,
+    or a UTF-8 locale other than C.UTF-8, makes stdout strict)."""
+    codecs.register_error("scene_recon_escape", _escape_undecodable)
+    for stream in (sys.stdout, sys.stderr):
+        if getattr(stream, "errors", None) in ("strict", "backslashreplace") and hasattr(stream, "reconfigure"):
+            with contextlib.suppress(ValueError, OSError):  # a stream that cannot be reconfigured
+                stream.reconfigure(errors="scene_recon_escape")
+
+
+def _quiet_native_output(args: argparse.Namespace) -> contextlib.AbstractContextManager:
+    """With `--json` (exactly one JSON document on stdout) and for `demo` (our progress and summaries only):
+    what native libraries print to file descriptors 1 and 2 is captured, and shown on stderr with -v."""
+    if getattr(args, "json", False) or args.command == "demo":
+        from scene_recon.native_output import native_output_captured
+
+        return native_output_captured(show=args.verbose > 0, label="output of native libraries")
+    return contextlib.nullcontext()
+
+
+def check_output_folder(args: argparse.Namespace) -> None:
+    """Before any work: `--out` must be a folder we can create and write (else one line, exit 2)."""
+    out = getattr(args, "out", None)
+    if not out or not isinstance(out, str):
+        return
+    from recon_core.errors import StorageError
+
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise StorageError(f"--out {out} is a file, not a folder")
+    probe = path
+    while not probe.exists():  # the nearest folder that exists must let us create the rest
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise StorageError(f"--out {out}: {probe} is a file, not a folder")
+    why = "permission denied" if not os.access(probe, os.W_OK | os.X_OK) else ""
+    if not why:
+        try:  # what the permission bits do not say: a read-only mount, root on a folder it may not write
+            with tempfile.TemporaryFile(dir=probe, prefix=".scene-recon-probe-"):
+                pass
+        except OSError as exc:
+            why = exc.strerror or type(exc).__name__
+    if why:
+        what = "is not writable" if probe == path else f"cannot be created: {probe} is not writable"
+        raise StorageError(f"--out {out} {what} ({why.lower()}); choose another output folder")
 
 
 if __name__ == "__main__":

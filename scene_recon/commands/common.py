@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from typing import Any
+
+import numpy as np
 
 from panoptic_mapping.dataio import DataInputConfig
 from panoptic_mapping.dataio.intrinsics import parse_intrinsics_option
@@ -84,6 +87,65 @@ def data_options_argv(args: argparse.Namespace) -> list[str]:
     return argv
 
 
+#: Why a figure is null in a ``--json`` document when the code that made it gave no reason of its own.
+NON_FINITE_REASONS = {"nan": "not a number: undefined for this input (e.g. nothing to measure it on)",
+                      "inf": "infinite: no value exists (e.g. nothing was matched or chosen)"}
+
+
+def _non_finite(value: Any) -> str | None:
+    """'nan' / 'inf' for a non-finite float (numpy's included), else None."""
+    if isinstance(value, (float, np.floating)) and not math.isfinite(float(value)):
+        return "nan" if math.isnan(float(value)) else "inf"
+    return None
+
+
+def _printable(text: str) -> str:
+    """A string that survives a strict UTF-8 encoder: undecodable path bytes (surrogate escapes) as \\xNN."""
+    try:
+        text.encode("utf-8")
+        return text
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+def strict_json_value(data: Any) -> Any:
+    """`data` as strict JSON can hold it: NaN/Infinity become null with ``<key>_null_reason`` beside them
+    (a reason the producer already gave is kept); numpy scalars and arrays become Python numbers and
+    lists; strings with undecodable bytes (paths) are escaped; anything else is written as its str()."""
+    if isinstance(data, dict):
+        out: dict[Any, Any] = {}
+        for key, value in data.items():
+            key = _printable(key) if isinstance(key, str) else str(key)
+            kind = _non_finite(value)
+            if kind is not None:
+                out[key] = None
+                out.setdefault(f"{key}_null_reason", data.get(f"{key}_null_reason", NON_FINITE_REASONS[kind]))
+            elif key.endswith("_null_reason") and key in out:
+                continue  # already set beside its value
+            else:
+                out[key] = strict_json_value(value)
+        return out
+    if isinstance(data, (list, tuple)):
+        return [None if _non_finite(v) is not None else strict_json_value(v) for v in data]
+    if isinstance(data, np.ndarray):
+        return strict_json_value(data.tolist())
+    if isinstance(data, np.generic):
+        return strict_json_value(data.item())
+    if _non_finite(data) is not None:
+        return None
+    if isinstance(data, str):
+        return _printable(data)
+    if data is None or isinstance(data, (bool, int, float)):
+        return data
+    return _printable(str(data))
+
+
+def json_text(data: Any, indent: int | None = 2) -> str:
+    """One strict JSON document (no NaN/Infinity: see ``strict_json_value``)."""
+    return json.dumps(strict_json_value(data), indent=indent, sort_keys=False, allow_nan=False)
+
+
 def print_json(data: Any) -> None:
-    json.dump(data, sys.stdout, indent=2, sort_keys=False, default=str)
-    sys.stdout.write("\n")
+    """Write `data` on stdout as exactly one strict JSON document (jq, JavaScript, Go can parse it)."""
+    sys.stdout.write(json_text(data) + "\n")
+    sys.stdout.flush()

@@ -25,6 +25,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="seen-only figures: a ground-truth entity counts as seen from N visible pixels over the "
                    "recording (default: match.seen_min_pixels of the config)")
     p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    p.add_argument("--force", action="store_true",
+                   help="score even when the graph and the ground truth come from different generated scenes "
+                   "(refused otherwise: exit 2); a warning says so")
     p.set_defaults(func=run)
 
 
@@ -52,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_scene_graph_config(args.config)
     if args.seen_min_pixels is not None:
         cfg.match.seen_min_pixels = args.seen_min_pixels
+    from scene_recon.commands.scene_identity import check_same_scene, graph_identity
+
+    check_same_scene(f"the graph {args.prediction}", graph_identity(args.prediction), args.groundtruth,
+                     args.force, "eval-graph")
     try:
         pred = ContactGraph.load(args.prediction)
     except (OSError, GraphError) as exc:

@@ -8,6 +8,7 @@ from dataclasses import fields
 from pathlib import Path
 
 from scene_recon.commands.common import print_json
+from scene_recon.commands.scene_identity import check_same_scene, map_identity
 from scene_recon.evaluation.map_metrics import PAPER_CLASSES, MetricsConfig, PanopticMetrics, evaluate_panoptic_map
 
 #: Protocol options of the command line: (flag, MetricsConfig field, type, help).
@@ -34,6 +35,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("ground_truth", metavar="GROUNDTRUTH",
                    help="ground-truth folder (<bag>_groundtruth with scene.json) or the generated bag beside it")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.add_argument("--force", action="store_true",
+                   help="score even when the map and the ground truth come from different generated scenes "
+                   "(refused otherwise: exit 2); a warning says so")
     p.add_argument("--classes", nargs="+", metavar="CLASS",
                    help="evaluate only these classes; 'paper' = the paper's 10 classes "
                    f"({', '.join(PAPER_CLASSES)})")
@@ -87,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
     if not map_dir.exists():
         raise FileNotFoundError(f"map folder {map_dir} does not exist: expected the output of `scene-recon map`")
     gt_dir = resolve_ground_truth(args.ground_truth)
+    check_same_scene(f"the map {map_dir}", map_identity(map_dir), gt_dir, args.force, "eval-map")
     try:
         classes = resolve_classes(args.classes)
         overrides = {name: getattr(args, name) for _, name, _, _ in _PROTOCOL_OPTIONS

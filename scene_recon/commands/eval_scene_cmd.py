@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from scene_recon.commands.common import print_json
@@ -24,15 +25,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cad-dir", metavar="DIR", help="imported CAD assets used by the replacement")
     p.add_argument("--no-physics", action="store_true", help="skip the PyBullet/MuJoCo check")
     p.add_argument("--json", action="store_true", help="print every figure as JSON")
+    p.add_argument("--force", action="store_true",
+                   help="score even when the replaced scene and the ground truth come from different generated scenes "
+                   "(refused otherwise: exit 2); a warning says so")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from cad_replacement.cad.library import CadLibrary
     from recon_core.contact_graph import ContactGraph
+    from scene_recon.commands.scene_identity import check_same_scene, scene_folder_identity
     from scene_recon.evaluation.scene_eval import evaluate_scene, scene_from_folder
     from scene_recon.synthetic.scene import GroundTruthScene
 
+    check_same_scene(f"the replaced scene {args.scene}", scene_folder_identity(args.scene), args.ground_truth,
+                     args.force, "eval-scene")
     library = CadLibrary(root=args.cad_dir, seeds_per_class=args.seeds_per_class)
     scene, records = scene_from_folder(args.scene, library)
     gt = GroundTruthScene.load(Path(args.ground_truth))
@@ -59,5 +66,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"contact graph GED against the ground truth: {b['total']} before, {a['total']} after replacement "
               f"(wrong supports {b['wrong_support']} -> {a['wrong_support']})")
     for engine, rep in figures.get("physics", {}).items():
-        print(f"{engine}: loaded {rep.get('loaded')}, still {rep.get('still_fraction')}")
+        still = rep.get("still_fraction")
+        drifts = [d for d in (rep.get("displacement") or {}).values() if d is not None and math.isfinite(d)]
+        moved = max(drifts, default=None)
+        print(f"{engine}: {'loaded' if rep.get('loaded') else 'NOT loaded'}, still "
+              + (f"{100 * still:.1f} %" if still is not None else "-")
+              + (f" of the movable objects (largest drift {100 * moved:.1f} cm)" if moved is not None else ""))
+        for error in rep.get("errors", [])[:3]:
+            print(f"  {engine} error: {error}")
     return 0

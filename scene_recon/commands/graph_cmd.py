@@ -69,6 +69,11 @@ def run(args: argparse.Namespace) -> int:
     graph.stats["total_s"] = time.perf_counter() - t0
     if observed is not None:
         graph.stats["observed_area_share"] = observed
+    from scene_recon.commands.scene_identity import ground_truth_identity, map_identity
+
+    scene_id = ground_truth_identity(source.path) if source.kind == "ground_truth" else map_identity(source.path)
+    if scene_id:  # the generated scene behind the graph: eval-graph / eval-scene refuse another one's ground truth
+        graph.stats["scene"] = scene_id
     safe = re.sub(r"[^A-Za-z0-9_.-]", "_", source.name) or "scene"
     out = Path(args.out) if args.out else Path("out") / "graph" / safe
     out.mkdir(parents=True, exist_ok=True)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import signal
 import sys
@@ -14,9 +13,11 @@ from scene_recon.commands.common import (
     add_data_options,
     add_preset_option,
     data_config_from_args,
+    json_text,
     preset_from_args,
     print_json,
 )
+from scene_recon.commands.scene_identity import recording_identity
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -70,7 +71,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--checkpoint-every-s", type=float, metavar="S",
                    help="checkpoint after this many seconds (default checkpoint.every_s: 60; 0: never by time)")
     p.add_argument("--no-checkpoints", action="store_true",
-                   help="write no checkpoints (a kill then loses the run); SIGINT/SIGTERM still stop cleanly")
+                   help="write no periodic checkpoints (a kill -9 then loses the run); SIGINT/SIGTERM still write "
+                   "one, which --resume continues")
     p.add_argument("--seed", type=int, default=0, help="oracle noise seed")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_preset_option(p)
@@ -170,7 +172,11 @@ def resume_state(args: argparse.Namespace):
 
 
 class _StopOnSignal:
-    """SIGINT/SIGTERM ask the mapping loop to stop after the current frame (it then checkpoints)."""
+    """SIGINT/SIGTERM ask the command to stop after the current frame (it then checkpoints).
+
+    Installed for the whole command, so a signal while the segmenter loads or while the finished map is
+    written is honoured too (no KeyboardInterrupt half-way through writing). A second SIGINT stops at
+    once (KeyboardInterrupt: exit 130; the checkpoints written so far stay)."""
 
     def __init__(self) -> None:
         self.signum: int | None = None
@@ -179,9 +185,20 @@ class _StopOnSignal:
     def __call__(self) -> bool:
         return self.signum is not None
 
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signum or signal.SIGINT).name
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + int(self.signum or signal.SIGINT)
+
     def _handle(self, signum: int, _frame: object) -> None:
+        if self.signum is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt  # asked twice: stop now
         if self.signum is None:
-            print(f"\n{signal.Signals(signum).name}: stopping after this frame (checkpoint first)", file=sys.stderr)
+            print(f"\n{signal.Signals(signum).name}: stopping after this frame (checkpoint first; SIGINT again to "
+                  "stop at once)", file=sys.stderr)
         self.signum = signum
 
     def __enter__(self) -> _StopOnSignal:
@@ -194,8 +211,26 @@ class _StopOnSignal:
             signal.signal(s, old)  # type: ignore[arg-type]
 
 
-def run(args: argparse.Namespace) -> int:
+def make_checkpointer(config, out: str | Path):
+    """The run's Checkpointer: periodic as configured; with checkpoints disabled, one that writes only
+    the checkpoint of a stop (SIGINT/SIGTERM), so an interrupted run never loses its frames."""
+    from dataclasses import replace
+
     from panoptic_mapping.checkpoint import CHECKPOINT_DIR, Checkpointer, CheckpointStore
+
+    store = CheckpointStore(Path(out) / CHECKPOINT_DIR, keep=config.checkpoint.keep)
+    if config.checkpoint.enabled:
+        return Checkpointer(store, config.checkpoint)
+    return Checkpointer(store, replace(config.checkpoint, enabled=True, every_n_frames=0, every_s=0.0))
+
+
+def run(args: argparse.Namespace) -> int:
+    with _StopOnSignal() as stop:
+        return _run(args, stop)
+
+
+def _run(args: argparse.Namespace, stop: _StopOnSignal) -> int:
+    from panoptic_mapping.checkpoint import CHECKPOINT_DIR
     from panoptic_mapping.pipeline import map_recording, write_map_outputs
     from recon_core.classes import load_class_table
     from scene_recon.synthetic.overview import render_map_picture
@@ -214,22 +249,24 @@ def run(args: argparse.Namespace) -> int:
         print(f"model: {segmenter.description} (onnxruntime on {segmenter.provider})")
     ckpt, mapper = resume_state(args)
     config = mapper_config_from_args(args)
-    checkpointer = None
-    if config.checkpoint.enabled:
-        store = CheckpointStore(Path(args.out) / CHECKPOINT_DIR, keep=config.checkpoint.keep)
-        checkpointer = Checkpointer(store, config.checkpoint)
-    with _StopOnSignal() as stop:
-        mapper, run_stats = map_recording(args.source, segmenter, config, data_cfg, progress=not args.json,
-                                          mapper=mapper, class_table=table, checkpointer=checkpointer,
-                                          resume=ckpt, stop=stop)
+    if stop():
+        print(f"scene-recon map: interrupted by {stop.name} before mapping began: nothing to save",
+              file=sys.stderr)
+        return stop.exit_code
+    checkpointer = make_checkpointer(config, args.out)
+    mapper, run_stats = map_recording(args.source, segmenter, config, data_cfg, progress=not args.json,
+                                      mapper=mapper, class_table=table, checkpointer=checkpointer,
+                                      resume=ckpt, stop=stop)
     if run_stats.interrupted:
-        name = signal.Signals(stop.signum or signal.SIGINT).name
-        where = (f"checkpoint {checkpointer.last_path} written" if checkpointer is not None
-                 and checkpointer.last_path is not None else "no checkpoint (--no-checkpoints)")
-        print(f"scene-recon map: interrupted by {name} after {run_stats.frames_read} frames; {where}; continue with "
-              f"--resume {args.out}", file=sys.stderr)
-        return 128 + int(stop.signum or signal.SIGINT)
+        where = (f"checkpoint {checkpointer.last_path} written ({run_stats.frames_read} frames read, "
+                 f"{run_stats.frames} mapped)" if checkpointer.last_path is not None else "no checkpoint written")
+        print(f"scene-recon map: interrupted by {stop.name} after {run_stats.frames_read} frames; {where}; "
+              f"continue with --resume {args.out}", file=sys.stderr)
+        return stop.exit_code
     run_info = {"segmenter": name, "source": str(args.source)}
+    scene_id = recording_identity(args.source, args.ground_truth if name == "oracle" else None)
+    if scene_id:  # the generated scene this map shows: eval-map refuses another scene's ground truth
+        run_info["scene"] = scene_id
     if name == "oracle":
         run_info["noise"] = args.noise
     if name == "onnx":
@@ -241,15 +278,19 @@ def run(args: argparse.Namespace) -> int:
     written = ["entities.json", "meshes/", "map.npz", "map.json", "summary.json"]
     if mapper.gravity.get("refined", {}).get("suggest_file"):
         written.append("gravity_refined.txt")
-    if checkpointer is not None and checkpointer.saved:
+    if checkpointer.saved:
         written.append(f"{CHECKPOINT_DIR}/")
-    try:
-        if render_map_picture(ents, run_stats.poses, out / "panoptic_map.png"):
-            written.append("panoptic_map.png")
-    except OSError as exc:
-        logging.getLogger(__name__).warning("no map picture: %s", exc)
+    if stop():  # the map is complete and written; the picture is a convenience
+        print(f"scene-recon map: {stop.name} while writing the outputs: the map was finished and written "
+              "first; panoptic_map.png skipped", file=sys.stderr)
+    else:
+        try:
+            if render_map_picture(ents, run_stats.poses, out / "panoptic_map.png"):
+                written.append("panoptic_map.png")
+        except OSError as exc:
+            logging.getLogger(__name__).warning("no map picture: %s", exc)
     summary["files"] = written
-    (out / "summary.json").write_text(json.dumps(summary, indent=1), encoding="utf-8")
+    (out / "summary.json").write_text(json_text(summary, indent=1), encoding="utf-8")
     problem = empty_result(summary, name)
     if args.json:
         print_json(summary)

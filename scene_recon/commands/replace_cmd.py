@@ -81,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
                                   "conflicts_after": len(physics.conflicts_after), "switches": physics.switches,
                                   "max_penetration_after_m": physics.max_penetration_after},
                "wall_s": time.perf_counter() - t0, "urdf": str(urdf)}
+    if graph.stats.get("scene"):  # the generated scene behind the graph (eval-scene checks its ground truth)
+        summary["scene_identity"] = graph.stats["scene"]
     write_text_atomic(out / "replacement.json", json.dumps(
         {**summary, "objects_detail": [r.to_dict() for r in result.records],
          "scene": scene_record(result.scene)}, indent=1))

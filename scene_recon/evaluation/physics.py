@@ -14,7 +14,9 @@ the inertials from the files (``URDF_USE_INERTIA_FROM_FILE``). MuJoCo loads ``sc
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -27,6 +29,8 @@ from numpy.typing import NDArray
 
 #: An object counts as still when it moved less than this (m) during the check.
 STILL_THRESHOLD = 0.02
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -91,7 +95,21 @@ def _displacement(corners: NDArray[np.float64], before: NDArray[np.float64], aft
 # ---------------------------------------------------------------------------- PyBullet
 def check_pybullet(folder: str | Path, seconds: float = 2.0, timestep: float = 1.0 / 240.0,
                    solver_iterations: int = 50) -> PhysicsReport:
-    """Simulate the scene folder in PyBullet (DIRECT mode) and measure the movable objects' drift."""
+    """Simulate the scene folder in PyBullet (DIRECT mode) and measure the movable objects' drift.
+
+    What PyBullet prints from C (its build time, a ``b3Warning`` per link without inertial data) is
+    captured at the file-descriptor level and shown on stderr only with ``-v`` (INFO logging)."""
+    with _engine_output("pybullet"):
+        return _check_pybullet(folder, seconds, timestep, solver_iterations)
+
+
+def _engine_output(engine: str) -> contextlib.AbstractContextManager:
+    from scene_recon.native_output import native_output_captured
+
+    return native_output_captured(show=log.isEnabledFor(logging.INFO), label=f"{engine} output")
+
+
+def _check_pybullet(folder: str | Path, seconds: float, timestep: float, solver_iterations: int) -> PhysicsReport:
     import pybullet as pb
 
     folder = Path(folder)
@@ -169,7 +187,13 @@ def _pb_link_pose(pb: Any, client: int, body: int) -> NDArray[np.float64]:
 
 # ---------------------------------------------------------------------------- MuJoCo
 def check_mujoco(folder: str | Path, seconds: float = 2.0) -> PhysicsReport:
-    """Simulate ``scene.xml`` in MuJoCo (its own timestep) and measure the movable objects' drift."""
+    """Simulate ``scene.xml`` in MuJoCo (its own timestep) and measure the movable objects' drift (MuJoCo's
+    own console output captured as PyBullet's, see ``check_pybullet``)."""
+    with _engine_output("mujoco"):
+        return _check_mujoco(folder, seconds)
+
+
+def _check_mujoco(folder: str | Path, seconds: float) -> PhysicsReport:
     import mujoco
 
     folder = Path(folder)

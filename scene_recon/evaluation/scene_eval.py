@@ -173,7 +173,7 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
         rec = records.get(obj.name, {})
         cand = next((c for c in rec.get("candidates", []) if c.get("cad_id") == obj.cad_id), {})
         chosen = _Chosen(obj.cad_id, obj.class_name, obj.pose, obj.scale, obj.joint_values,
-                         _Alignment(float(cand.get("alignment_error", np.nan))))
+                         _Alignment(*(_number(cand.get(k)) for k in ("alignment_error", "ae_points", "ae_model"))))
         rep = _Replacement(obj.name, obj.class_name, chosen, base, dict(rec.get("timings", {})))
         gt_model = ground_truth.model_of(gt)
         assert gt_model is not None
@@ -192,7 +192,7 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
         gaps.append(min(abs(bottom - h) for h in heights))
     out: dict[str, Any] = {
         "ground_truth_objects": len(gt_objects), "replaced_objects": len(placed), "matched": matched,
-        "objects": summarize(evals), "per_object": [e.__dict__ for e in evals],
+        "objects": summarize(evals), "per_object": [_object_figures(e) for e in evals],
         "max_interpenetration_m": worst,
         "interpenetrating_pairs_over_1cm": sum(1 for _a, _b, d in penetrations if d > 0.01),
         "support_gap_median_m": float(np.median(gaps)) if gaps else None,
@@ -213,6 +213,35 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
 
         out["physics"] = {"pybullet": check_pybullet(physics_folder).to_dict(),
                           "mujoco": check_mujoco(physics_folder).to_dict()}
+    return out
+
+
+def _number(value: Any) -> float:
+    """A recorded figure as a float (NaN when the record has none)."""
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else float("nan")
+
+
+#: Why a per-object figure has no finite value (JSON holds null and this reason beside it, never NaN).
+_UNDEFINED = {
+    "ae_points": "not recorded: the chosen candidate in replacement.json has no ae_points (written by an older "
+                 "replace, or the candidate was screened only, never fitted)",
+    "ae_model": "not recorded: the chosen candidate in replacement.json has no ae_model (written by an older "
+                "replace, or the candidate was screened only, never fitted)",
+    "ae": "not recorded: the chosen candidate has no alignment_error in replacement.json",
+}
+_NO_CHOICE = "no CAD model was chosen for this object"
+
+
+def _object_figures(e: Any) -> dict[str, Any]:
+    """One object's figures with NaN/inf replaced by None and ``<key>_null_reason`` beside them."""
+    out: dict[str, Any] = {}
+    for key, value in e.__dict__.items():
+        if isinstance(value, float) and not np.isfinite(value):
+            out[key] = None
+            out[f"{key}_null_reason"] = _NO_CHOICE if not e.chosen else _UNDEFINED.get(
+                key, "not a number" if np.isnan(value) else "infinite")
+        else:
+            out[key] = value
     return out
 
 

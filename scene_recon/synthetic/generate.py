@@ -3,7 +3,7 @@
 Output layout for `--out out/kitchen` (a `.mcap`/`.db3` suffix on PATH picks the storage and is
 stripped from the folder name):
 
-    out/kitchen/                    rosbag2 folder: metadata.yaml + kitchen.mcap
+    out/kitchen/                    rosbag2 folder: metadata.yaml + kitchen.mcap (lz4 chunks, see bag_writer)
         /camera/color/image_raw          rgb8
         /camera/depth/image_rect_raw     16UC1 (mm), noisy like a structured-light sensor
         /camera/color/camera_info
@@ -41,6 +41,8 @@ class GenerateConfig:
     fps: float = 30.0
     seed: int = 0
     storage: str = "mcap"
+    #: MCAP chunk compression ("lz4", "zstd", "none"; None: the writer's default, lz4 for mcap, none for db3)
+    bag_compression: str | None = None
     layout: LayoutConfig = field(default_factory=LayoutConfig)
     sensor: SensorConfig = field(default_factory=SensorConfig)
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
@@ -94,7 +96,8 @@ def generate_recording(out: str | Path, config: GenerateConfig, progress: bool =
     sim = RGBDSensorSimulator(scene.render_items(config.seed), config=config.sensor)
     visible = np.zeros(max(e.id for e in scene.entities) + 1, np.int64)
     bag_path.parent.mkdir(parents=True, exist_ok=True)
-    with RGBDBagWriter(bag_path, storage=storage) as writer:
+    with RGBDBagWriter(bag_path, storage=storage, compression=config.bag_compression) as writer:
+        compression = writer.compression
         frames = sim.frames(traj.poses, traj.timestamps_ns, seed=config.seed, fps=config.fps)
         for frame in tqdm(frames, total=len(traj), desc="rendering", unit="frame", disable=not progress):
             labels = frame.extras["labels"]
@@ -112,7 +115,7 @@ def generate_recording(out: str | Path, config: GenerateConfig, progress: bool =
                     renderer=sim.renderer)
     timings["ground_truth_s"] = time.perf_counter() - t0
     summary = {
-        "bag": str(bag_path), "storage": storage, "ground_truth": str(gt_path),
+        "bag": str(bag_path), "storage": storage, "compression": compression, "ground_truth": str(gt_path),
         "frames": len(traj), "resolution": [config.sensor.camera.width, config.sensor.camera.height],
         "room_size_m": [round(v, 3) for v in scene.room_size],
         "entities": len(scene.entities),

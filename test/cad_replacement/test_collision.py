@@ -184,3 +184,28 @@ def test_an_observed_scan_collides_as_its_hull_without_convex_decomposition():
     two = trimesh.util.concatenate([cap, far])
     assert len(observed_collisions(two)) == 2
     assert observed_collisions(trimesh.Trimesh()) == ()
+
+
+def test_a_grounded_observed_scan_rests_on_a_footprint_under_its_centre_of_mass():
+    """A chair scanned from the front: its seat and back reach the floor only through two front legs
+    (an edge). Kept as its observed mesh, its hull would tip over; the grounded hull stands."""
+    from scipy.spatial import ConvexHull
+
+    from cad_replacement.collision import inertial_from_shapes, observed_collisions, shape_mesh
+
+    seat = trimesh.creation.box([0.45, 0.45, 0.04]).apply_translation([0.0, 0.0, 0.45])
+    back = trimesh.creation.box([0.04, 0.45, 0.5]).apply_translation([-0.2, 0.0, 0.72])
+    legs = [trimesh.creation.box([0.03, 0.03, 0.43]).apply_translation([0.2, y, 0.215]) for y in (-0.2, 0.2)]
+    scan = trimesh.util.concatenate([seat, back, *legs])
+    for grounded in (False, True):
+        shapes = observed_collisions(scan, grounded=grounded)
+        assert all(s.kind == "mesh" and shape_mesh(s).is_convex for s in shapes)
+        verts = np.concatenate([np.asarray(shape_mesh(s).vertices) for s in shapes])
+        foot = verts[verts[:, 2] < 1e-6][:, :2]
+        com = inertial_from_shapes(shapes, 500.0).center_of_mass
+        area = ConvexHull(foot).volume if len(foot) >= 3 and np.ptp(foot[:, 0]) > 1e-3 else 0.0
+        if grounded:  # a footprint as wide as the chair, under its centre of mass
+            assert area > 0.15
+            assert foot[:, 0].min() < com[0] < foot[:, 0].max()
+        else:  # the front legs' edge only: x of every floor contact beyond the centre of mass
+            assert area < 0.02 and foot[:, 0].min() > com[0]

@@ -178,7 +178,7 @@ def _simple_bag(tmp_path: Path, n: int = 4, **kw) -> Path:
     return path
 
 
-@pytest.mark.parametrize("compression", ["none", "zstd", "db3"])
+@pytest.mark.parametrize("compression", ["none", "lz4", "zstd", "db3"])
 def test_truncated_bag_yields_the_frames_before_the_cut(tmp_path, caplog, compression):
     """A recorder killed mid-write: no summary, no footer, no metadata.yaml; frames before the cut are read."""
     n = 40  # ~0.6 MB: zstd compresses in 128 kB blocks, a cut-off chunk decodes block by block
@@ -186,11 +186,9 @@ def test_truncated_bag_yields_the_frames_before_the_cut(tmp_path, caplog, compre
     intr = CameraIntrinsics(*K, width=W, height=H)
     path = tmp_path / "full"
     storage = "db3" if compression == "db3" else "mcap"
-    writer = RGBDBagWriter(path, storage=storage)
-    if compression == "zstd":  # chunk compression, as `ros2 bag record --compression-mode storage`
-        from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
-
-        writer._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    # chunk compression (lz4 is the writer's default for mcap; zstd as `ros2 bag record
+    # --compression-mode storage`), or none: a bag written before issue 25
+    writer = RGBDBagWriter(path, storage=storage, compression=None if storage == "db3" else compression)
     with writer as w:
         for i in range(n):
             w.write_frame(T0 + i * PERIOD, colors[i], depths[i], intr, np.eye(4))

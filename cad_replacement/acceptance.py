@@ -1,0 +1,142 @@
+"""Never worse than the observation: which fitted CAD models stage 4 may keep (issue 22, item 5).
+
+``judge(replacement, observation, config)`` runs after matching and alignment (``replace_object``)
+and before the scene is assembled:
+
+* **Class margin.** The best fitted model of the detected class is compared with the best fitted
+  model of the classes interchangeable with it (``matching.candidate_classes``: chair and sofa).
+  The other class comes first only when its two-sided AE is at most ``1 - class_margin`` times the
+  detected class's; the verdict then names the detected class in ``substituted_from``.
+* **Acceptance gate.** A candidate is kept only when it explains the observed surface: the paper's
+  AE (RMS distance of the observed points to the aligned CAD surface, Sec. 4.3; ``ae_points``) and
+  the two-sided AE that ranks the candidates are within ``ae_limit`` (a share of the observed box's
+  diagonal, clipped to [``accept_ae_min``, ``accept_ae_max``]), and the CAD surface a camera along
+  the observation's view would see is covered by observed surface (``view_coverage`` >=
+  ``accept_min_coverage``). Screened-only candidates (no full fit) are kept only as the physical check's
+  backups, judged when it asks for one (their AE where they would be placed, ``placed_error``).
+
+When no candidate passes, the replacer exports the object as its observed mesh (collision: its
+convex hull or hull pieces, mass from their volume) and the record says why, e.g.
+``"AE 54 mm > limit 30 mm (chair/p12)"``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cad_replacement.alignment import ModelGeometry, PreparedObservation
+from cad_replacement.observation import ObjectObservation
+from cad_replacement.replace_config import CadReplacementConfig
+from cad_replacement.replace_object import CandidateResult, ObjectReplacement, _final_error
+
+
+def ae_limit(observation: ObjectObservation, cfg: CadReplacementConfig) -> float:
+    """Largest paper AE (m) a kept model may have: ``accept_ae_rel`` x the observed box diagonal,
+    clipped to [``accept_ae_min``, ``accept_ae_max``]."""
+    diagonal = float(np.linalg.norm(np.asarray(observation.gravity_box.size, dtype=np.float64)))
+    return float(np.clip(cfg.accept_ae_rel * diagonal, cfg.accept_ae_min, cfg.accept_ae_max))
+
+
+def fit_figures(candidate: CandidateResult) -> dict[str, float | None]:
+    """The fit-quality figures of one candidate as plain data (m; shares in [0, 1]; None: unknown)."""
+    def num(v: float) -> float | None:
+        return float(v) if math.isfinite(v) else None
+
+    ae = candidate.ae
+    full = candidate.stage in ("full", "placed")
+    return {"ae": num(ae.ae) if full else None, "ae_points": num(ae.ae_points) if full else None,
+            "ae_model": num(ae.ae_model) if full else None,
+            "coverage": num(ae.coverage) if full else None, "view_coverage": num(ae.view_coverage) if full else None}
+
+
+def placed_error(prepared: PreparedObservation, candidate: CandidateResult, geom: ModelGeometry,
+                 cfg: CadReplacementConfig) -> CandidateResult:
+    """A screened-only candidate with its AE measured where it would be placed (stage ``"placed"``):
+    the physical check may take it as a backup, and the gate then judges it like a fitted one."""
+    values = geom.model.zero_configuration() if geom.model.movable_joints else {}
+    ae = _final_error(prepared, geom, candidate.placement, values, cfg)
+    return dataclasses.replace(candidate, ae=ae, stage="placed", joint_values=dict(values))
+
+
+def rejection(candidate: CandidateResult, limit: float, cfg: CadReplacementConfig) -> str:
+    """Why ``candidate`` may not stand for the observation ("" when it may)."""
+    if candidate.stage not in ("full", "placed"):
+        return "not fully fitted"
+    ae = candidate.ae
+    if not math.isfinite(ae.ae_points) or ae.ae_points > limit:
+        return f"AE {1000 * ae.ae_points:.0f} mm > limit {1000 * limit:.0f} mm"
+    if not math.isfinite(ae.ae) or ae.ae > limit:  # the two-sided AE (what ranks the candidates) too
+        return f"two-sided AE {1000 * ae.ae:.0f} mm > limit {1000 * limit:.0f} mm"
+    cov = ae.view_coverage
+    if math.isfinite(cov) and cov < cfg.accept_min_coverage:
+        return f"coverage {100 * cov:.0f} % < {100 * cfg.accept_min_coverage:.0f} % of the visible model surface"
+    return ""
+
+
+@dataclass
+class Verdict:
+    """What the acceptance step decided for one object."""
+
+    #: Candidates that may stand for the object, the choice first (empty: keep the observed mesh).
+    accepted: list[CandidateResult]
+    #: Why no candidate was kept ("" when one was), naming the best candidate's failure.
+    reason: str = ""
+    #: The detected class when a model of another class was chosen ("" otherwise).
+    substituted_from: str = ""
+    #: The AE limit applied (m).
+    ae_limit: float = 0.0
+    #: Per candidate (same order as the replacement's candidates): "" kept, else why not.
+    rejections: list[str] = field(default_factory=list)
+    #: Screened-only candidates of the chosen class, best first: backups the physical check may ask
+    #: for, judged then (``placed_error``), as fitting them all up front would cost more than the scene.
+    backups: list[CandidateResult] = field(default_factory=list)
+    #: Class-margin note: both classes' best two-sided AE when they were compared.
+    class_comparison: dict[str, Any] = field(default_factory=dict)
+
+
+def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplacementConfig) -> Verdict:
+    """Order ``rep``'s candidates by the class margin and keep those that explain the observation."""
+    limit = ae_limit(observation, cfg)
+    cands = list(rep.candidates)
+    detected = rep.class_name
+    full = [c for c in cands if c.stage == "full"]
+    own = min((c for c in full if c.class_name == detected), key=lambda c: c.score, default=None)
+    other = min((c for c in full if c.class_name != detected), key=lambda c: c.score, default=None)
+    comparison: dict[str, Any] = {}
+    first: CandidateResult | None = full[0] if full else None
+    if own is not None and other is not None:
+        wins = other.ae.ae <= (1.0 - cfg.class_margin) * own.ae.ae
+        comparison = {"detected": own.key, "detected_ae": float(own.ae.ae), "other": other.key,
+                      "other_ae": float(other.ae.ae), "margin": cfg.class_margin, "other_wins": bool(wins)}
+        first = other if wins else own
+    elif own is not None:
+        first = own
+    rejections = [rejection(c, limit, cfg) if cfg.accept_gate else ("" if c.stage == "full" else "not fully fitted")
+                  for c in cands]
+    ok = {id(c) for c, why in zip(cands, rejections, strict=True) if not why}
+    ordered = ([first] if first is not None else []) + [c for c in cands if c is not first]
+    # Without a margin win the detected class keeps the object: another class's model is then no
+    # alternative either (the physical check would swap it in unannounced).
+    klass = first.class_name if first is not None else detected
+    accepted = [c for c in ordered if id(c) in ok and c.class_name == klass]
+    backups = [c for c in ordered if c.stage == "screen" and c.class_name == klass]
+    verdict = Verdict(accepted, ae_limit=limit, rejections=rejections, class_comparison=comparison,
+                      backups=backups)
+    if not accepted:
+        best = first if first is not None else (cands[0] if cands else None)
+        if best is not None:
+            why = rejections[cands.index(best)]
+            verdict.reason = f"{why} ({best.key})"
+        else:
+            verdict.reason = rep.message or "no CAD candidate"
+    elif accepted[0].class_name != detected:
+        verdict.substituted_from = detected
+    return verdict
+
+
+__all__ = ["Verdict", "ae_limit", "fit_figures", "judge", "placed_error", "rejection"]
