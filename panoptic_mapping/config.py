@@ -161,6 +161,12 @@ class ExtractionConfig(Settings):
     #: Also output the reconstructed surface no entity claims, as entity 0 of class -1 ("unknown"):
     #: evaluation must know that geometry was observed there even if it was not recognised.
     include_unknown: bool = True
+    #: A thing entity with at least this share of its vertices within 1.5 voxels of a larger entity of
+    #: its own class joins it (one object whose instance tracking split: a table's legs, half a chair).
+    #: Measured on the robustness protocol's maps: such splits touch along 10-20 % of the smaller part,
+    #: separate objects of one class along < 2 %. 0 disables (the paper's extraction).
+    merge_touching_share: float = setting(0.05, min=0.0, max=1.0, doc="share of a thing's vertices touching a "
+                                          "larger same-class entity that merges it into that entity (0: never)")
     #: Reconstructed vertices no entity claims join the nearest claimed vertex's entity within this
     #: radius (m): the unvoted fringe along depth edges. 0 disables.
     fill_radius_m: float = 0.08

@@ -518,6 +518,9 @@ class PanopticMapper:
         if fragment_of_label is not None and fragment_class is not None and len(fragment_class):
             frag_v = np.where(inside, fragment_of_label[clipped], 0)
             ent_v = self._merge_fragments(v, ent_v, frag_v, fragment_class, {e.id: e.class_id for e in ents})
+        share = self.config.extraction.merge_touching_share
+        if share > 0:
+            ent_v = self._merge_touching(v, ent_v, {e.id: e.class_id for e in ents if e.is_thing}, share)
         voted = ent_v > 0
         ent_v = self._fill_unclaimed(v, ent_v)
         ent_f = ent_v[f]
@@ -573,6 +576,56 @@ class PanopticMapper:
         out = ent_v.copy()
         joins = target[frag_v[fv]]
         out[fv[joins > 0]] = joins[joins > 0]
+        return out
+
+    def _merge_touching(self, v: np.ndarray, ent_v: np.ndarray, thing_class: dict[int, int],
+                        min_share: float) -> np.ndarray:
+        """A thing entity with at least `min_share` of its vertices within 1.5 voxels of a larger entity of
+        its own class joins it: one object whose instance tracking split (a table's legs apart from its
+        top, a chair in two halves). Two separate objects of one class touch along a small share of their
+        surface (side by side cabinets: < 1 %), so they stay apart."""
+        eids = np.array(sorted(thing_class), np.int64)
+        if eids.size < 2:
+            return ent_v
+        from scipy.spatial import cKDTree
+
+        idx = np.flatnonzero(np.isin(ent_v, eids))
+        owner = ent_v[idx]
+        sizes = dict(zip(*np.unique(owner, return_counts=True), strict=True))
+        touch = 1.5 * self.config.tsdf.voxel_size_m
+        _d, nb = cKDTree(v[idx]).query(v[idx], k=8, distance_upper_bound=touch)
+        valid = nb < len(idx)
+        rows = np.repeat(np.arange(len(idx)), nb.shape[1])[valid.ravel()]
+        other = owner[nb[valid]]
+        mine = owner[rows]
+        classes = np.array([thing_class[e] for e in eids.tolist()], np.int64)
+        keep = (other != mine) & (classes[np.searchsorted(eids, other)] == classes[np.searchsorted(eids, mine)])
+        if not np.any(keep):
+            return ent_v
+        # distinct (vertex, neighbour entity) pairs, then vertices per (entity, neighbour entity)
+        vert_pairs = np.unique(np.stack([rows[keep], other[keep]], axis=1), axis=0)
+        pairs, counts = np.unique(np.stack([owner[vert_pairs[:, 0]], vert_pairs[:, 1]], axis=1), axis=0,
+                                  return_counts=True)
+        alias: dict[int, int] = {}
+
+        def root(e: int) -> int:
+            while e in alias:
+                e = alias[e]
+            return e
+
+        for k in np.argsort(-counts / np.array([sizes[int(a)] for a in pairs[:, 0]]), kind="stable").tolist():
+            small, big = int(pairs[k, 0]), int(pairs[k, 1])
+            if sizes[small] > sizes[big] or counts[k] < min_share * sizes[small]:
+                continue  # only the smaller one joins, and only when a real share of it touches
+            rs, rb = root(small), root(big)
+            if rs != rb:
+                alias[rs] = rb
+        if not alias:
+            return ent_v
+        lut = {e: root(e) for e in alias}
+        out = ent_v.copy()
+        for src, dst in lut.items():
+            out[ent_v == src] = dst
         return out
 
     def _fill_unclaimed(self, v: np.ndarray, ent_v: np.ndarray) -> np.ndarray:

@@ -131,3 +131,28 @@ def test_birth_settings_are_validated_and_the_paper_rule_selectable():
     assert paper.extraction.min_instance_frames == 1 and not paper.extraction.merge_fragments
     with pytest.raises(ConfigError):
         load_config(MapperConfig, CONFIG_DIR / "mapper.yaml", {"extraction.min_instance_frames": 0})
+
+
+def _grid(nx: int, ny: int, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+    voxel = MapperConfig().tsdf.voxel_size_m
+    g = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij"), -1).reshape(-1, 2) * voxel
+    return np.c_[g, np.zeros(len(g))] + np.array(offset) * voxel
+
+
+def test_a_split_off_part_joins_its_larger_same_class_entity():
+    """Half a chair (same class, a fifth of it along the seam) joins the other half; a cabinet beside
+    another cabinet (touching along one edge row of 30) and a sofa touching a chair stay apart."""
+    big = _grid(20, 10)  # entity 1: chair, 200 vertices
+    part = _grid(5, 10, offset=(20, 0, 0))  # entity 2: chair, 50 vertices; 10 (20 %) on the seam
+    cab_a = _grid(30, 30, offset=(100, 0, 0))  # entity 3: cabinet
+    cab_b = _grid(30, 20, offset=(130, 0, 0))  # entity 4: cabinet, 600 vertices, one row of 20 touches
+    sofa = _grid(5, 10, offset=(-5, 0, 0))  # entity 5: sofa touching the chair
+    v = np.concatenate([big, part, cab_a, cab_b, sofa])
+    ent_v = np.concatenate([np.full(len(big), 1), np.full(len(part), 2), np.full(len(cab_a), 3),
+                            np.full(len(cab_b), 4), np.full(len(sofa), 5)])
+    out = _mapper()._merge_touching(v, ent_v, {1: CHAIR, 2: CHAIR, 3: 40, 4: 40, 5: SOFA}, 0.05)
+    assert np.all(out[: len(big) + len(part)] == 1)  # the part joined
+    rest = out[len(big) + len(part):]
+    assert np.array_equal(rest, ent_v[len(big) + len(part):])  # cabinets (3 % touching) and the sofa stay
+    # 0 disables it in the mapper's config; a share above the seam's keeps the part apart
+    assert np.array_equal(_mapper()._merge_touching(v, ent_v, {1: CHAIR, 2: CHAIR}, 0.5), ent_v)

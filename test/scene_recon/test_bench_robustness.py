@@ -64,7 +64,7 @@ def test_protocol_specs_validate_their_scenes_draws_and_variants():
     assert len(quick.draws) >= 3 and len(quick.scenes) >= 2
     assert any(s.startswith("gen-") for s in quick.scenes)  # a scene outside the benchmark suite
     full = protocol_spec("full", paper_birth=True)
-    assert {v.label for v in full.variants} == {"full", "baseline", "full/paper-birth"}
+    assert {v.label for v in full.variants} == {"full", "baseline", "full/paper-extraction"}
     assert sum(s.startswith("bench-") for s in full.scenes) == 4 and sum(s.startswith("gen-") for s in full.scenes) >= 3
     with pytest.raises(ValueError, match="unknown scene"):
         ProtocolSpec(("nowhere",), (0, 1, 2))
