@@ -12,7 +12,7 @@ REQ_STAMP := $(VENV)/.requirements.stamp
 PKG_STAMP := $(VENV)/.package.stamp
 DEMO_OUT ?= out/demo
 
-.PHONY: help setup system-deps test lint demo bench bench-quick bench-full clean
+.PHONY: help setup system-deps test lint demo bench bench-quick bench-full bench-robustness bench-robustness-quick clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:.*## /\t/' | column -t -s $$'\t'
@@ -59,6 +59,12 @@ bench-quick: setup  ## end-to-end benchmark, quick suite (< 3 min): presets, tim
 
 bench-full: setup  ## end-to-end benchmark, full suite (< 30 min): sweeps, Pareto plots, skips, scaling -> $(BENCH_OUT)/full
 	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite full --out $(BENCH_OUT)/full
+
+bench-robustness: setup  ## the robustness protocol (~1 h on 2 cores): 8 scenes x 3 noise draws, full vs baseline vs the paper's birth rule -> $(BENCH_OUT)/robustness
+	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite robustness --paper-birth --out $(BENCH_OUT)/robustness
+
+bench-robustness-quick: setup  ## its CI subset (~5 min): 2 scenes (one outside the suite) x 3 draws, full vs baseline -> $(BENCH_OUT)/robustness-quick
+	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite robustness-quick --out $(BENCH_OUT)/robustness-quick
 
 clean:  ## remove build products (keeps the venv)
 	rm -rf .build build log out .pytest_cache

@@ -452,13 +452,20 @@ class PanopticMapper:
             seg_instance[label] = p
         # group segments per entity: things by instance, stuff by class
         groups: dict[int, list[int]] = {}
-        min_frames = self.config.extraction.min_instance_frames
+        fragments: dict[int, list[int]] = {}
+        # a map whose instances were each segmented once (one keyframe so far) has nothing to confirm
+        # a detection against: then one frame is enough
+        seen_most = max(counts.instance_frames.values(), default=0)
+        min_frames = min(self.config.extraction.min_instance_frames, max(seen_most, 1))
         for label, p in seg_instance.items():
             c = seg_class[label][0]
             meta = self.classes.get(c)
             thing = meta is None or meta.is_thing
             if thing and counts.instance_frames.get(p, 0) < min_frames:
-                continue  # seen in too few segmented frames: a spurious detection, not an object
+                # seen in too few segmented frames: what one bad frame says (a spurious blob, a split-off
+                # piece of a mask) is no object; a piece touching its own class's entity joins it
+                fragments.setdefault(p, []).append(label)
+                continue
             key = p if thing else counts.instance_for_stuff(c)
             groups.setdefault(key, []).append(label)
         ents: list[Entity] = []
@@ -482,8 +489,14 @@ class PanopticMapper:
             # all reconstructed surface that no entity claims: evaluation must see it as geometry
             unknown = Entity(UNKNOWN_ENTITY_ID, "unknown", class_id=BACKGROUND, is_thing=False, category="unknown",
                              confidence=0.0)
+        fragment_of_label = np.zeros(lut_size, np.int64)
+        fragment_class: list[int] = []
+        if with_meshes and self.config.extraction.merge_fragments:
+            for labels in fragments.values():
+                fragment_class.append(seg_class[labels[0]][0])
+                fragment_of_label[labels] = len(fragment_class)
         if with_meshes:
-            self._attach_meshes(ents, entity_of_label, unknown)
+            self._attach_meshes(ents, entity_of_label, unknown, fragment_of_label, np.array(fragment_class, np.int64))
         min_v = self.config.extraction.min_entity_voxels
         out = [e for e in ents if not with_meshes or len(e.vertices) >= min_v]
         if unknown is not None and len(unknown.faces):
@@ -491,14 +504,23 @@ class PanopticMapper:
         return out
 
     def _attach_meshes(self, ents: list[Entity], entity_of_label: np.ndarray,
-                       unknown: Entity | None = None) -> None:
+                       unknown: Entity | None = None, fragment_of_label: np.ndarray | None = None,
+                       fragment_class: np.ndarray | None = None) -> None:
         v, f, vlab = self.tsdf.extract_mesh()
         if len(f) == 0:
             return
         v, f, vlab = canonical_mesh_order(v, f, vlab)
         lut = self.counts.canonical_lut(len(entity_of_label))
         canon = lut[np.clip(vlab, 0, len(lut) - 1)]
-        ent_v = np.where(canon < len(entity_of_label), entity_of_label[np.clip(canon, 0, len(entity_of_label) - 1)], 0)
+        inside = canon < len(entity_of_label)
+        clipped = np.clip(canon, 0, len(entity_of_label) - 1)
+        ent_v = np.where(inside, entity_of_label[clipped], 0)
+        if fragment_of_label is not None and fragment_class is not None and len(fragment_class):
+            frag_v = np.where(inside, fragment_of_label[clipped], 0)
+            ent_v = self._merge_fragments(v, ent_v, frag_v, fragment_class, {e.id: e.class_id for e in ents})
+        share = self.config.extraction.merge_touching_share
+        if share > 0:
+            ent_v = self._merge_touching(v, ent_v, {e.id: e.class_id for e in ents if e.is_thing}, share)
         voted = ent_v > 0
         ent_v = self._fill_unclaimed(v, ent_v)
         ent_f = ent_v[f]
@@ -522,6 +544,89 @@ class PanopticMapper:
             rank[order] = np.arange(len(order))
             e.set_geometry(v[used[order]], rank[inv].reshape(-1, 3), int(voted[used].sum()))
             e.num_voxels = len(used)
+
+    def _merge_fragments(self, v: np.ndarray, ent_v: np.ndarray, frag_v: np.ndarray, fragment_class: np.ndarray,
+                         class_of_entity: dict[int, int]) -> np.ndarray:
+        """Fragments (thing instances below `min_instance_frames`, numbered from 1 in `frag_v`) that touch
+        an entity of their own class join it: the entity with the most fragment vertices within 1.5
+        voxels of its own. The rest stay unclaimed (the fill, then `unknown`)."""
+        fv = np.flatnonzero(frag_v > 0)
+        claimed = np.flatnonzero(ent_v > 0)
+        if fv.size == 0 or claimed.size == 0:
+            return ent_v
+        from scipy.spatial import cKDTree
+
+        touch = 1.5 * self.config.tsdf.voxel_size_m
+        dist, idx = cKDTree(v[claimed]).query(v[fv], k=1, distance_upper_bound=touch)
+        ok = np.isfinite(dist)
+        frag, neighbour = frag_v[fv[ok]], ent_v[claimed[idx[ok]]]
+        eids = np.array(sorted(class_of_entity), np.int64)
+        classes = np.array([class_of_entity[e] for e in eids.tolist()], np.int64)
+        neighbour_class = classes[np.searchsorted(eids, neighbour)] if eids.size else np.zeros(0, np.int64)
+        same = neighbour_class == fragment_class[frag - 1]
+        if not np.any(same):
+            return ent_v
+        pairs, contacts = np.unique(np.stack([frag[same], neighbour[same]], axis=1), axis=0, return_counts=True)
+        # per fragment, the neighbour with the most contacts (ties: the lower entity id, deterministic)
+        order = np.lexsort((pairs[:, 1], -contacts, pairs[:, 0]))
+        pairs = pairs[order]
+        first = np.r_[True, pairs[1:, 0] != pairs[:-1, 0]]
+        target = np.zeros(len(fragment_class) + 1, np.int64)
+        target[pairs[first, 0]] = pairs[first, 1]
+        out = ent_v.copy()
+        joins = target[frag_v[fv]]
+        out[fv[joins > 0]] = joins[joins > 0]
+        return out
+
+    def _merge_touching(self, v: np.ndarray, ent_v: np.ndarray, thing_class: dict[int, int],
+                        min_share: float) -> np.ndarray:
+        """A thing entity with at least `min_share` of its vertices within 1.5 voxels of a larger entity of
+        its own class joins it: one object whose instance tracking split (a table's legs apart from its
+        top, a chair in two halves). Two separate objects of one class touch along a small share of their
+        surface (side by side cabinets: < 1 %), so they stay apart."""
+        eids = np.array(sorted(thing_class), np.int64)
+        if eids.size < 2:
+            return ent_v
+        from scipy.spatial import cKDTree
+
+        idx = np.flatnonzero(np.isin(ent_v, eids))
+        owner = ent_v[idx]
+        sizes = dict(zip(*np.unique(owner, return_counts=True), strict=True))
+        touch = 1.5 * self.config.tsdf.voxel_size_m
+        _d, nb = cKDTree(v[idx]).query(v[idx], k=8, distance_upper_bound=touch)
+        valid = nb < len(idx)
+        rows = np.repeat(np.arange(len(idx)), nb.shape[1])[valid.ravel()]
+        other = owner[nb[valid]]
+        mine = owner[rows]
+        classes = np.array([thing_class[e] for e in eids.tolist()], np.int64)
+        keep = (other != mine) & (classes[np.searchsorted(eids, other)] == classes[np.searchsorted(eids, mine)])
+        if not np.any(keep):
+            return ent_v
+        # distinct (vertex, neighbour entity) pairs, then vertices per (entity, neighbour entity)
+        vert_pairs = np.unique(np.stack([rows[keep], other[keep]], axis=1), axis=0)
+        pairs, counts = np.unique(np.stack([owner[vert_pairs[:, 0]], vert_pairs[:, 1]], axis=1), axis=0,
+                                  return_counts=True)
+        alias: dict[int, int] = {}
+
+        def root(e: int) -> int:
+            while e in alias:
+                e = alias[e]
+            return e
+
+        for k in np.argsort(-counts / np.array([sizes[int(a)] for a in pairs[:, 0]]), kind="stable").tolist():
+            small, big = int(pairs[k, 0]), int(pairs[k, 1])
+            if sizes[small] > sizes[big] or counts[k] < min_share * sizes[small]:
+                continue  # only the smaller one joins, and only when a real share of it touches
+            rs, rb = root(small), root(big)
+            if rs != rb:
+                alias[rs] = rb
+        if not alias:
+            return ent_v
+        lut = {e: root(e) for e in alias}
+        out = ent_v.copy()
+        for src, dst in lut.items():
+            out[ent_v == src] = dst
+        return out
 
     def _fill_unclaimed(self, v: np.ndarray, ent_v: np.ndarray) -> np.ndarray:
         """Unclaimed vertices within `fill_radius_m` of a claimed one join its entity.

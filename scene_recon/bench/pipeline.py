@@ -195,6 +195,11 @@ def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = N
     still = [rep.get("still_fraction") for rep in s.get("physics", {}).values()
              if rep.get("still_fraction") is not None]
     cad_objects = sum(1 for r in result.records if r.kind == "cad")
+    # Pose success counts CAD-placed objects only: an object stage 4 keeps as its observed mesh is out of
+    # its denominator. The recall beside it does not flatter a stricter gate: correct CAD poses over every
+    # ground-truth object the camera saw.
+    seen_objects = sum(1 for e in scene.entities if e.model_seed is not None and (seen is None or e.id in seen))
+    successes = round(float(objects.get("pose_success") or 0.0) * int(objects.get("objects") or 0))
     return {
         "label": spec.label, "preset": spec.preset.name if spec.preset else None, "method": spec.method,
         "mode": spec.mode, "extra": spec.extra, "shared": "+".join(shared) or None,
@@ -220,6 +225,9 @@ def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = N
         "ged_ratio": round(float(gs["ged"]["ratio"]), 4), "box_mAP": round(float(gs["box_map_refined"]["mAP"]), 4),
         "pose_success": objects.get("pose_success"), "ae_median_m": objects.get("ae_median"),
         "cad_objects": cad_objects, "matched_objects": s.get("matched"),
+        "observed_mesh_objects": sum(1 for r in result.records if r.kind == "observed_mesh"),
+        "seen_objects": seen_objects,
+        "pose_recall": round(successes / seen_objects, 4) if seen_objects else None,
         "stillness": round(float(sum(still) / len(still)), 4) if still else None,
         "unchanged_rematched": again.rematched,
     }

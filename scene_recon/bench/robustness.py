@@ -28,7 +28,7 @@ import os
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +56,28 @@ PROTOCOLS: dict[str, tuple[tuple[str, ...], tuple[int, ...]]] = {
 
 MODES = ("full", "baseline")
 
+#: The paper's entity extraction (every detection is born; no fragment or split-part merging): selectable
+#: so the protocol shows our rules' gain side by side on the same draws (`--paper-birth`).
+PAPER_BIRTH: dict[str, dict[str, Any]] = {
+    "mapper": {"extraction.min_instance_frames": 1, "extraction.merge_fragments": False,
+               "extraction.merge_touching_share": 0.0}}
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One configuration every (scene, draw) runs: a label, the mapper mode, dotted overrides."""
+
+    label: str
+    mode: str = "full"
+    extra: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    def __hash__(self) -> int:
+        return hash((self.label, self.mode, json.dumps(self.extra, sort_keys=True)))
+
+
+DEFAULT_VARIANTS = (Variant("full", "full"), Variant("baseline", "baseline"))
+PAPER_BIRTH_VARIANT = Variant("full/paper-extraction", "full", PAPER_BIRTH)
+
 #: figure -> (row key, higher is better, scale for display)
 FIGURES: dict[str, tuple[str, bool]] = {
     "pq": ("pq", True),
@@ -63,6 +85,7 @@ FIGURES: dict[str, tuple[str, bool]] = {
     "box_mAP": ("box_mAP", True),
     "ged_ratio": ("ged_ratio", False),
     "pose_success": ("pose_success", True),
+    "pose_recall": ("pose_recall", True),
     "ae_median_m": ("ae_median_m", False),
     "stillness": ("stillness", True),
     "map_ms_per_frame": ("map_ms_per_frame", False),
@@ -76,7 +99,7 @@ class ProtocolSpec:
 
     scenes: tuple[str, ...]
     draws: tuple[int, ...]
-    modes: tuple[str, ...] = MODES
+    variants: tuple[Variant, ...] = DEFAULT_VARIANTS
     gt_entities: bool = True
 
     def __post_init__(self) -> None:
@@ -85,19 +108,23 @@ class ProtocolSpec:
             raise ValueError(f"unknown scene(s) {', '.join(unknown)}; known: {', '.join([*SUITE, *GENERATED])}")
         if len(self.draws) < 1 or len(set(self.draws)) != len(self.draws):
             raise ValueError(f"draws must be distinct and at least one, got {self.draws}")
-        bad = [m for m in self.modes if m not in MODES]
-        if bad or not self.modes:
-            raise ValueError(f"modes must be among {MODES}, got {self.modes}")
+        bad = [v.mode for v in self.variants if v.mode not in MODES]
+        if bad or not self.variants:
+            raise ValueError(f"variant modes must be among {MODES}, got {[v.mode for v in self.variants]}")
+        if len({v.label for v in self.variants}) != len(self.variants):
+            raise ValueError("variant labels must be distinct")
 
 
 def protocol_spec(name: str, draws: int | None = None, scenes: list[str] | None = None,
-                  modes: list[str] | None = None, gt_entities: bool = True) -> ProtocolSpec:
-    """The named protocol, optionally with more (or fewer) draws, other scenes or modes."""
+                  paper_birth: bool = False, gt_entities: bool = True) -> ProtocolSpec:
+    """The named protocol, optionally with more (or fewer) draws, other scenes, and the paper's birth
+    rule as a third variant."""
     if name not in PROTOCOLS:
         raise ValueError(f"unknown protocol {name!r}; known: {', '.join(PROTOCOLS)}")
     base_scenes, base_draws = PROTOCOLS[name]
-    return ProtocolSpec(tuple(scenes or base_scenes), tuple(range(draws)) if draws else base_draws,
-                        tuple(modes or MODES), gt_entities)
+    variants = (*DEFAULT_VARIANTS, PAPER_BIRTH_VARIANT) if paper_birth else DEFAULT_VARIANTS
+    return ProtocolSpec(tuple(scenes or base_scenes), tuple(range(draws)) if draws else base_draws, variants,
+                        gt_entities)
 
 
 def scene_definition(name: str) -> SuiteScene:
@@ -144,19 +171,22 @@ def aggregate(rows: list[dict[str, Any]], gt_rows: list[dict[str, Any]]) -> dict
         out["modes"][mode] = {"per_scene": per_scene, "overall": overall, "worst_scene_mean": worst_scene,
                               "worst_draw": {f: _worst_row(mine, k, hib) for f, (k, hib) in FIGURES.items()},
                               "runs": len(mine)}
-    if {"full", "baseline"} <= {r["mode"] for r in rows}:
-        by = {(r["scene"], r["draw"], r["mode"]): r for r in rows}
+    by = {(r["scene"], r["draw"], r["mode"]): r for r in rows}
+    for other in sorted({r["mode"] for r in rows} - {"full"}):
+        paired = out["paired"].setdefault(f"full - {other}", {})
         for f, (k, hib) in FIGURES.items():
-            gaps = [by[(s, d, "full")][k] - by[(s, d, "baseline")][k] for (s, d, m) in by
-                    if m == "full" and (s, d, "baseline") in by
-                    and by[(s, d, "full")].get(k) is not None and by[(s, d, "baseline")].get(k) is not None]
-            out["paired"][f] = stats(gaps, hib)
+            gaps = [by[(s, d, "full")][k] - by[(s, d, other)][k] for (s, d, m) in by
+                    if m == "full" and (s, d, other) in by
+                    and by[(s, d, "full")].get(k) is not None and by[(s, d, other)].get(k) is not None]
+            paired[f] = stats(gaps, hib)
     if gt_rows:
         out["gt_entities"] = {
-            "per_scene": {r["scene"]: {k: r.get(k) for k in ("pose_success", "ae_median_m", "stillness")}
+            "per_scene": {r["scene"]: {k: r.get(k) for k in ("pose_success", "pose_recall", "ae_median_m",
+                                                             "stillness")}
                           for r in gt_rows},
             "overall": {k: stats([r.get(k) for r in gt_rows], hib) for k, hib in
-                        (("pose_success", True), ("ae_median_m", False), ("stillness", True))}}
+                        (("pose_success", True), ("pose_recall", True), ("ae_median_m", False),
+                         ("stillness", True))}}
     return out
 
 
@@ -187,13 +217,18 @@ def gt_entity_row(scene_name: str, gt_dir: Path, library: Any, out: Path) -> dic
     still = [rep.get("still_fraction") for rep in s.get("physics", {}).values()
              if rep.get("still_fraction") is not None]
     objects = s.get("objects", {})
+    gt_objects = sum(1 for e in gt.entities if e.model_seed is not None)
+    successes = round(float(objects.get("pose_success") or 0.0) * int(objects.get("objects") or 0))
     return {"scene": scene_name, "pose_success": objects.get("pose_success"), "ae_median_m": objects.get("ae_median"),
+            "pose_recall": round(successes / gt_objects, 4) if gt_objects else None,
+            "observed_mesh_objects": sum(1 for r in result.records if r.kind == "observed_mesh"),
             "stillness": float(np.mean(still)) if still else None, "replace_s": round(replace_s, 3)}
 
 
-def _row(raw: dict[str, Any], scene: str, draw: int, mode: str) -> dict[str, Any]:
+def _row(raw: dict[str, Any], scene: str, draw: int, variant: Variant) -> dict[str, Any]:
     row = dict(raw)
-    row.update(scene=scene, draw=draw, mode=mode,
+    # "mode" names the variant (what the statistics group by); "mapper_mode" the mapper's own mode
+    row.update(scene=scene, draw=draw, mode=variant.label, mapper_mode=variant.mode,
                map_ms_per_frame=round(1000.0 * raw["times_s"]["map"] / max(raw["frames"], 1), 2),
                replace_s=raw["times_s"]["replace"])
     return row
@@ -212,7 +247,7 @@ def run_protocol(spec: ProtocolSpec, out: Path, progress: Progress = print,
     gt_rows: list[dict[str, Any]] = []
     t_start = time.perf_counter()
     c_start = time.process_time()
-    total = len(spec.scenes) * len(spec.draws) * len(spec.modes)
+    total = len(spec.scenes) * len(spec.draws) * len(spec.variants)
     done = 0
     for scene in spec.scenes:
         progress(f"[{time.perf_counter() - t_start:6.0f} s] {scene}: generating (cached after the first time) ...")
@@ -223,29 +258,39 @@ def run_protocol(spec: ProtocolSpec, out: Path, progress: Progress = print,
             progress(f"         ground-truth entities: pose success {_fmt(g['pose_success'], pct=True)}, "
                      f"AE median {_fmt(g['ae_median_m'], mm=True)}, still {_fmt(g['stillness'], pct=True)}")
         for draw in spec.draws:
-            for mode in spec.modes:
+            for variant in spec.variants:
                 done += 1
-                label = f"{mode}/draw{draw}"
+                label = f"{variant.label}/draw{draw}"
                 folder = work / scene / label.replace("/", "_")
-                raw = run_pipeline(bag, gt, folder, RunSpec(label, mode=mode, noise_seed=draw, extra=extra or {}),
-                                   library, cache=StageCache(capacity=1))
+                overrides = _merged(extra or {}, variant.extra)
+                raw = run_pipeline(bag, gt, folder, RunSpec(label, mode=variant.mode, noise_seed=draw,
+                                                            extra=overrides), library, cache=StageCache(capacity=1))
                 shutil.rmtree(folder, ignore_errors=True)
-                row = _row(raw, scene, draw, mode)
+                row = _row(raw, scene, draw, variant)
                 rows.append(row)
-                progress(f"[{time.perf_counter() - t_start:6.0f} s] ({done}/{total}) {scene} draw {draw} {mode:8s} "
+                progress(f"[{time.perf_counter() - t_start:6.0f} s] ({done}/{total}) {scene} draw {draw} "
+                         f"{variant.label:8s} "
                          f"PQ {row['pq']:5.1f}  box mAP {row['box_mAP']:.2f}  GED {row['ged_ratio']:.3f}  "
                          f"pose {_fmt(row['pose_success'], pct=True)}  AE {_fmt(row['ae_median_m'], mm=True)}  "
                          f"still {_fmt(row['stillness'], pct=True)}  {row['map_ms_per_frame']:.0f} ms/frame"
                          + (f"  false classes: {', '.join(row['false_classes'])}" if row["false_classes"] else ""))
     shutil.rmtree(work, ignore_errors=True)
     summary = aggregate(rows, gt_rows)
-    results = {"protocol": {"scenes": list(spec.scenes), "draws": list(spec.draws), "modes": list(spec.modes),
+    results = {"protocol": {"scenes": list(spec.scenes), "draws": list(spec.draws),
+                            "variants": [vars(v) for v in spec.variants],
                             "extra": extra or {}, "scene_definitions": {
                                 s: vars(scene_definition(s)) for s in spec.scenes}},
                "summary": summary, "rows": rows, "gt_rows": gt_rows,
                "wall_s": round(time.perf_counter() - t_start, 1), "cpu_s": round(time.process_time() - c_start, 1),
                "machine": {"cpus": os.cpu_count(), "load_avg": [round(x, 2) for x in os.getloadavg()]}}
     return results
+
+
+def _merged(a: dict[str, dict[str, Any]], b: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    out = {k: dict(v) for k, v in a.items()}
+    for k, v in b.items():
+        out.setdefault(k, {}).update(v)
+    return out
 
 
 def _fmt(v: float | None, pct: bool = False, mm: bool = False) -> str:
@@ -262,6 +307,7 @@ def _fmt(v: float | None, pct: bool = False, mm: bool = False) -> str:
 
 _DISPLAY = {"pq": ("PQ", 1.0, ""), "pq_things": ("PQ things", 1.0, ""), "box_mAP": ("box mAP", 1.0, ""),
             "ged_ratio": ("GED ratio", 1.0, ""), "pose_success": ("mapped pose success", 100.0, " %"),
+            "pose_recall": ("pose recall (correct CAD / seen objects)", 100.0, " %"),
             "ae_median_m": ("AE median", 1000.0, " mm"), "stillness": ("stillness", 100.0, " %"),
             "map_ms_per_frame": ("mapping ms/frame", 1.0, ""), "replace_s": ("stage-4 s", 1.0, "")}
 
@@ -279,11 +325,13 @@ def summary_lines(results: dict[str, Any]) -> list[str]:
             parts.append(f"{name} {scale * st['mean']:.2f} ± {scale * st['std']:.2f}{unit} (worst "
                          f"{scale * st['worst']:.2f} on {w['scene']} draw {w['draw']})")
         lines.append(f"{mode} ({m['runs']} runs): " + "; ".join(parts))
-    for f in ("pq", "box_mAP", "pose_success"):
-        st = s["paired"].get(f)
-        if st is not None:
+    for pair, figures in s["paired"].items():
+        for f in ("pq", "box_mAP", "pose_success", "pose_recall"):
+            st = figures.get(f)
+            if st is None:
+                continue
             name, scale, unit = _DISPLAY[f]
-            lines.append(f"full - baseline {name}, same draws: {scale * st['mean']:+.2f} ± "
+            lines.append(f"{pair} {name}, same draws: {scale * st['mean']:+.2f} ± "
                          f"{scale * st['std']:.2f}{unit} (worst {scale * st['worst']:+.2f}, "
                          f"best {scale * st['best']:+.2f})")
     gt = s.get("gt_entities", {}).get("overall", {})
@@ -296,14 +344,15 @@ def summary_lines(results: dict[str, Any]) -> list[str]:
 
 def _table(results: dict[str, Any]) -> list[str]:
     s = results["summary"]
-    heads = ["scene", "mode"] + [_DISPLAY[f][0] for f in ("pq", "box_mAP", "ged_ratio", "pose_success",
-                                                          "ae_median_m", "stillness", "map_ms_per_frame")]
+    columns = ("pq", "box_mAP", "ged_ratio", "pose_success", "pose_recall", "ae_median_m", "stillness",
+               "map_ms_per_frame")
+    heads = ["scene", "mode"] + [_DISPLAY[f][0] for f in columns]
     md = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     gt = s.get("gt_entities", {}).get("per_scene", {})
     for mode, m in s["modes"].items():
         for scene, figs in m["per_scene"].items():
             cells = [scene, mode]
-            for f in ("pq", "box_mAP", "ged_ratio", "pose_success", "ae_median_m", "stillness", "map_ms_per_frame"):
+            for f in columns:
                 st = figs.get(f)
                 _name, scale, _unit = _DISPLAY[f]
                 cells.append("n/a" if st is None else
@@ -329,18 +378,21 @@ def plot_draws(results: dict[str, Any], path: Path) -> Path | None:
     rows = results["rows"]
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    colors = {"full": "tab:blue", "baseline": "tab:orange"}
+    colors = {"full": "tab:blue", "baseline": "tab:orange", PAPER_BIRTH_VARIANT.label: "tab:gray"}
+    modes = list(dict.fromkeys(r["mode"] for r in rows))
+    width = 0.6 / max(len(modes), 1)
     for ax, key, title, scale in ((axes[0], "pq", "PQ per draw", 1.0),
                                   (axes[1], "pose_success", "mapped CAD pose success per draw (%)", 100.0)):
-        for k, mode in enumerate(dict.fromkeys(r["mode"] for r in rows)):
+        for k, mode in enumerate(modes):
+            dx = (k - (len(modes) - 1) / 2) * width
             xs, ys = [], []
             for i, scene in enumerate(scenes):
                 vals = [scale * r[key] for r in rows if r["scene"] == scene and r["mode"] == mode
                         and r.get(key) is not None]
-                xs += [i + (k - 0.5) * 0.25] * len(vals)
+                xs += [i + dx] * len(vals)
                 ys += vals
                 if vals:
-                    ax.hlines(np.mean(vals), i + (k - 0.5) * 0.25 - 0.1, i + (k - 0.5) * 0.25 + 0.1,
+                    ax.hlines(np.mean(vals), i + dx - width / 2, i + dx + width / 2,
                               color=colors.get(mode, "k"), lw=2)
             ax.scatter(xs, ys, color=colors.get(mode, "k"), s=18, label=mode, alpha=0.8)
         ax.set_xticks(range(len(scenes)))
@@ -367,7 +419,8 @@ def write_protocol_report(results: dict[str, Any], out: Path) -> dict[str, Path]
     files["json"] = out / "results.json"
     p = results["protocol"]
     md = ["# scene_recon robustness protocol", "",
-          f"Scenes: {', '.join(p['scenes'])}; oracle noise draws {p['draws']}; modes {', '.join(p['modes'])}"
+          f"Scenes: {', '.join(p['scenes'])}; oracle noise draws {p['draws']}; variants "
+          f"{', '.join(v['label'] for v in p['variants'])}"
           + (f"; overrides {p['extra']}" if p["extra"] else "") + f". Wall time {results['wall_s']:.0f} s, "
           f"CPU {results['cpu_s']:.0f} s on {results['machine']}.", "",
           "Each cell: mean ± standard deviation over the draws (worst draw). Stage 4 uses the unseen library.", "",

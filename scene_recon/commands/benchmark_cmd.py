@@ -27,6 +27,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--draws", type=int, metavar="N", help="robustness: noise draws per scene (default 3)")
     p.add_argument("--scenes", nargs="+", metavar="NAME",
                    help="robustness: only these scenes (suite scenes bench-*, generated gen-*)")
+    p.add_argument("--paper-birth", action="store_true",
+                   help="robustness: also run the full mapper with the paper's birth rule for thing entities "
+                   "(every detection is born, no fragment merging), side by side on the same draws")
     p.add_argument("--out", required=True, help="report folder (created; files in it are replaced)")
     p.add_argument("--long-frames", type=int, default=2000, metavar="N",
                    help="full suite: frames of the long sequence for the per-frame cost (default 2000)")
@@ -56,7 +59,8 @@ def _robustness(args: argparse.Namespace, progress) -> int:
     if args.draws is not None and args.draws < 1:
         raise ConfigError(f"--draws must be at least 1, got {args.draws}")
     try:
-        spec = protocol_spec("quick" if args.suite == "robustness-quick" else "full", args.draws, args.scenes)
+        spec = protocol_spec("quick" if args.suite == "robustness-quick" else "full", args.draws, args.scenes,
+                             paper_birth=args.paper_birth)
     except ValueError as exc:
         raise ConfigError(str(exc)) from exc
     results = run_protocol(spec, Path(args.out), progress)

@@ -5,46 +5,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from testsupport.tiny_room import EYES, IDS, INTR, render_frame, room_meshes, room_renderer
 
 from panoptic_mapping.config import FusionConfig, MapperConfig
-from panoptic_mapping.dataio import CameraIntrinsics, RGBDFrame
 from panoptic_mapping.depth_segmentation import segment_depth
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks, fuse
 from panoptic_mapping.mapper import ClassMeta, PanopticMapper
 from panoptic_mapping.pipeline import class_metas
-from scene_recon.synthetic.geometry import look_at_pose
-from scene_recon.synthetic.items import RenderItem
-from scene_recon.synthetic.renderer import RaycastRenderer
 
-INTR = CameraIntrinsics(160.0, 160.0, 79.5, 59.5, 160, 120)
 FLOOR, TABLE, CUP, CHAIR = 1, 10, 19, 12
-IDS = {"floor": 1, "table": 2, "cup": 3, "chair": 4}
-
-
-def _box(lo, hi) -> trimesh.Trimesh:
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    m = trimesh.creation.box(extents=hi - lo)
-    m.apply_translation((lo + hi) / 2)
-    return m
 
 
 @pytest.fixture(scope="module")
 def tiny_scene():
-    meshes = {
-        "floor": _box([-3, -3, -0.05], [3, 3, 0]),
-        "table": _box([1.2, -0.4, 0], [2.0, 0.4, 0.7]),
-        "cup": _box([1.55, -0.05, 0.7], [1.65, 0.05, 0.82]),
-        "chair": _box([1.3, 0.8, 0], [1.7, 1.2, 0.5]),
-    }
-    renderer = RaycastRenderer([RenderItem(m, IDS[k], name=k) for k, m in meshes.items()])
-    return meshes, renderer
+    meshes = room_meshes()
+    return meshes, room_renderer(meshes)
 
 
-def _frame(renderer, eye, target=(1.6, 0.2, 0.4), index=0) -> tuple[RGBDFrame, np.ndarray]:
-    pose = look_at_pose(np.array(eye, float), np.array(target, float))
-    hits, rgb = renderer.render(pose, INTR)
-    frame = RGBDFrame(rgb, hits.depth.astype(np.float32), INTR, pose, index * 100_000_000, index=index)
-    return frame, hits.labels.astype(np.int32)
+_frame = render_frame
 
 
 def _gt_masks(labels: np.ndarray, classes=None) -> PanopticMasks:
@@ -122,9 +100,6 @@ def _mapper(mode="full", keyframes=False) -> PanopticMapper:
     cfg.fusion.min_segment_points = 40
     cfg.depth_segmentation.min_segment_pixels = 20
     return PanopticMapper(cfg, class_metas())
-
-
-EYES = [(0.0, -0.5, 1.4), (0.1, 0.0, 1.5), (0.0, 0.5, 1.4), (0.3, -0.3, 1.6), (0.3, 0.4, 1.3)]
 
 
 def _run(mapper, renderer, shuffle_ids: bool):

@@ -1,0 +1,108 @@
+"""The robustness protocol (scene_recon.bench.robustness): statistics over draws, and one tiny run end to end."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from scene_recon.bench import robustness
+from scene_recon.bench.pipeline import StageCache
+from scene_recon.bench.robustness import (
+    ProtocolSpec,
+    Variant,
+    aggregate,
+    protocol_spec,
+    run_protocol,
+    stats,
+    summary_lines,
+    write_protocol_report,
+)
+from scene_recon.synthetic.suite import SuiteScene
+
+
+def _row(scene, draw, mode, pq, pose, ae):
+    return {"scene": scene, "draw": draw, "mode": mode, "pq": pq, "pq_things": pq, "box_mAP": 0.5,
+            "ged_ratio": 0.1, "pose_success": pose, "ae_median_m": ae, "stillness": 1.0, "map_ms_per_frame": 10.0,
+            "replace_s": 1.0}
+
+
+def test_stats_name_the_worst_by_the_figures_direction():
+    up = stats([0.8, 0.6, None, 0.9, float("nan")], higher_is_better=True)
+    assert up == pytest.approx({"mean": 0.7666666, "std": 0.1247219, "worst": 0.6, "best": 0.9, "n": 3})
+    down = stats([3.0, 5.0], higher_is_better=False)
+    assert down["worst"] == 5.0 and down["best"] == 3.0
+    assert stats([None], True) is None
+
+
+def test_aggregate_reports_spread_worst_draw_worst_scene_and_paired_gains():
+    rows = [_row("a", 0, "full", 90, 0.9, 0.004), _row("a", 1, "full", 70, 0.8, 0.006),
+            _row("b", 0, "full", 85, 0.5, 0.010), _row("b", 1, "full", 87, 0.7, 0.002),
+            _row("a", 0, "baseline", 80, 0.5, 0.005), _row("a", 1, "baseline", 75, 0.6, 0.005),
+            _row("b", 0, "baseline", 60, 0.4, 0.005), _row("b", 1, "baseline", 70, None, 0.005)]
+    gt = [{"scene": "a", "pose_success": 0.9, "ae_median_m": 0.003, "stillness": 1.0},
+          {"scene": "b", "pose_success": 0.95, "ae_median_m": 0.002, "stillness": 1.0}]
+    s = aggregate(rows, gt)
+    full = s["modes"]["full"]
+    assert full["overall"]["pq"]["mean"] == pytest.approx(83.0) and full["overall"]["pq"]["worst"] == 70
+    assert full["worst_draw"]["pq"] == {"scene": "a", "draw": 1, "value": 70}
+    assert full["worst_draw"]["ae_median_m"] == {"scene": "b", "draw": 0, "value": 0.010}  # lower is better
+    assert full["worst_scene_mean"]["pose_success"] == {"scene": "b", "mean": pytest.approx(0.6)}
+    assert full["per_scene"]["a"]["pq"]["std"] == pytest.approx(10.0)
+    gains = s["paired"]["full - baseline"]
+    assert gains["pq"]["mean"] == pytest.approx((10 - 5 + 25 + 17) / 4) and gains["pq"]["worst"] == -5
+    assert gains["pose_success"]["n"] == 3  # a draw without a figure on one side is not paired
+    assert s["gt_entities"]["overall"]["pose_success"]["worst"] == 0.9
+    lines = summary_lines({"summary": s})
+    assert any(line.startswith("full (4 runs): PQ 83.00") for line in lines)
+    assert any("full - baseline PQ" in line and "+11.75" in line for line in lines)
+
+
+def test_protocol_specs_validate_their_scenes_draws_and_variants():
+    quick = protocol_spec("quick")
+    assert len(quick.draws) >= 3 and len(quick.scenes) >= 2
+    assert any(s.startswith("gen-") for s in quick.scenes)  # a scene outside the benchmark suite
+    full = protocol_spec("full", paper_birth=True)
+    assert {v.label for v in full.variants} == {"full", "baseline", "full/paper-extraction"}
+    assert sum(s.startswith("bench-") for s in full.scenes) == 4 and sum(s.startswith("gen-") for s in full.scenes) >= 3
+    with pytest.raises(ValueError, match="unknown scene"):
+        ProtocolSpec(("nowhere",), (0, 1, 2))
+    with pytest.raises(ValueError, match="distinct"):
+        ProtocolSpec(("bench-small",), (0, 0))
+    with pytest.raises(ValueError):
+        ProtocolSpec(("bench-small",), (0,), (Variant("x", "other"),))
+
+
+def test_the_noise_draw_is_part_of_a_maps_identity():
+    from panoptic_mapping.config import MapperConfig
+    from panoptic_mapping.dataio import DataInputConfig
+
+    key = lambda draw: StageCache.map_key("bag", MapperConfig(), DataInputConfig(), "default", draw)  # noqa: E731
+    assert key(0) != key(1) and key(1) == key(1)
+
+
+@pytest.mark.slow
+def test_a_tiny_protocol_end_to_end_writes_strict_json_a_table_and_a_plot(tmp_path, monkeypatch):
+    monkeypatch.setenv("SCENE_RECON_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setitem(robustness.GENERATED, "gen-tiny", SuiteScene("gen-tiny", "tiny", 11, 3, 12))
+    spec = ProtocolSpec(("gen-tiny",), (0, 1))
+    lines: list[str] = []
+    results = run_protocol(spec, tmp_path / "out", lines.append)
+    assert [(r["draw"], r["mode"]) for r in results["rows"]] == [(0, "full"), (0, "baseline"), (1, "full"),
+                                                                  (1, "baseline")]
+    assert len(results["gt_rows"]) == 1 and results["gt_rows"][0]["scene"] == "gen-tiny"
+    assert any("(4/4) gen-tiny draw 1 baseline" in line for line in lines)
+    files = write_protocol_report(results, tmp_path / "out")
+    text = files["json"].read_text(encoding="utf-8")
+
+    def no_constants(name):
+        raise ValueError(f"non-strict JSON constant {name}")
+
+    data = json.loads(text, parse_constant=no_constants)
+    assert data["summary"]["modes"]["full"]["runs"] == 2
+    assert all(math.isfinite(r["map_ms_per_frame"]) and r["map_ms_per_frame"] > 0 for r in data["rows"])
+    report = files["markdown"].read_text(encoding="utf-8")
+    assert "| gen-tiny | full |" in report and "| gen-tiny | baseline |" in report
+    assert files["plot"].stat().st_size > 1000
+    assert not (tmp_path / "out" / "work").exists()  # per-run folders are removed
