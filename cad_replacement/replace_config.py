@@ -167,8 +167,9 @@ class CadReplacementConfig:
     #: classes' best fits came within 1.0x (cabinet/wardrobe, both right), 0.88x (a mapped table against
     #: a desk, both wrong) and 2.4x of the detected class's.
     class_margin: float = 0.2
-    #: Ours: when no model of the detected class reaches the full fit (``screen_keep``), its best
-    #: screened candidate gets one too, so the class margin compares fitted models.
+    #: Ours: when no model of the detected class is among the ``top_k`` matches, its two best
+    #: orientations join them; when none reaches the full fit (``screen_keep``), its best screened
+    #: candidate gets one too, so the class margin compares fitted models.
     detected_class_fit: bool = True
 
     #: Random seed of every subsample (deterministic results).

@@ -230,6 +230,14 @@ def replace_object(
     for c in classes:
         pool.extend(library.candidates(c))
     match = match_candidates(obs, pool, cfg, planes=planes)
+    own = [(e, f) for e, f in pool if e.class_name == obs.class_name]
+    if cfg.method == "ours" and cfg.detected_class_fit and own and len(own) < len(pool) \
+            and not any(m.entry.class_name == obs.class_name for m in match.candidates):
+        # The top-k holds only other classes' orientations (a chair's partial box ranks sofa models
+        # first): the detected class's best orientations join, so the acceptance step's class margin
+        # compares against a fitted model of the detected class (``detected_class_fit``).
+        extra = match_candidates(obs, own, dataclasses.replace(cfg, top_k=2), planes=planes)
+        match.candidates.extend(extra.candidates)
     timings["match"] = time.perf_counter() - t
     base = ObjectReplacement(
         obs.entity_id, obs.name, obs.class_name, cfg.method, [], None, None, None, match.hypotheses, match.scored,
