@@ -109,7 +109,10 @@ class ReplacementResult:
 
     @property
     def rematched(self) -> int:
-        return sum(1 for r in self.records if r.kind == "cad" and not r.reused)
+        """Objects matched and aligned in this call (CAD models, and observed meshes whose candidates
+        the acceptance gate refused), not reused from an earlier call."""
+        return sum(1 for r in self.records if not r.reused and (r.kind == "cad" or (
+            r.kind == "observed_mesh" and bool(r.candidates))))
 
 
 @dataclass
