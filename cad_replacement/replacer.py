@@ -9,8 +9,11 @@
   open space) and goes through ``replace_object`` (matching Eqs. 7-10, alignment Eqs. 11-14,
   articulation); the ranked candidates go to the global physical check (Sec. 4.4), which picks one
   per object and rests it on its support;
-* an object whose class has no CAD model keeps its observed mesh as a one-link model, so nothing
-  mapped is lost from the scene.
+* an object whose class has no CAD model, or whose fitted models do not explain its observation
+  (``acceptance``: AE and coverage limits, the class margin), keeps its observed mesh as a one-link
+  model, so nothing mapped is lost and nothing exported is worse than what was seen; its record says
+  why. Observed meshes are made fit for a simulator (``observed_physics``), a floor slab reaches
+  under everything on it and what the graph hangs on a wall is mounted there.
 
 Cost follows what changed: results are cached per node by (entity revision, parent, box), so an
 update of one entity re-matches that entity only; models and their ray-casting scenes are built
