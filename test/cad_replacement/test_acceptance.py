@@ -228,3 +228,29 @@ def test_the_floor_slab_reaches_under_what_stands_beyond_the_mapped_floor():
     assert floor.model.size[2] == pytest.approx(0.1) and floor.pose[2, 3] == pytest.approx(-0.1)
     _floor_under_children(inside, [inside])  # nothing on it: unchanged
     assert np.allclose(inside.model.size, [2.0, 2.0, 0.1])
+
+
+def test_a_backup_the_physical_check_swaps_in_passed_the_gate_and_is_named_in_the_record():
+    from cad_replacement.acceptance import rejection
+    from cad_replacement.scene_model import ReplacedScene
+
+    swapped: dict[str, object] = {}
+
+    def check(scene, alternatives):
+        alts = alternatives["box_2"]
+        for i in range(len(alts)):
+            alt = alts[i]
+            if i in alts.built_candidates:  # a backup that passed the gate (else: the first choice again)
+                swapped["cand"] = alts.built_candidates[i]
+                objs = [alt if o.name == "box_2" else o for o in scene]
+                return ReplacedScene(scene.name, objs, scene.frame_id, scene.revision)
+        return scene
+
+    ents = _scene_entities()
+    replacer = CadReplacer(CadLibrary(seeds_per_class=3), CadReplacementConfig(workers=1), physical_check=check)
+    result = replacer.replace(build_contact_graph(ents), {e.id: e for e in ents})
+    rec = next(r for r in result.records if r.name == "box_2")
+    cand = swapped["cand"]
+    assert rejection(cand, rec.fit["ae_limit"], replacer.config) == ""  # type: ignore[arg-type]
+    assert rec.cad_id == cand.key and result.scene.object("box_2").cad_id == cand.key  # type: ignore[attr-defined]
+    assert "physical check:" in rec.message and rec.fit["ae_points"] == pytest.approx(cand.ae.ae_points)  # type: ignore[attr-defined]
