@@ -362,6 +362,9 @@ def _hull_pieces(mesh: trimesh.Trimesh, ground: float | None = None) -> list[tri
 #: open surface that changes with every map update, and CoACD took 18-48 s per small object on real
 #: scans (88-129 vertices: 20-49 pieces), every time its mesh changed.
 OBSERVED_HULL_MAX_EXTENT = 0.6
+#: The same for a grounded (movable) observed mesh: one stacked on another (a TV split into two
+#: detections) or bled into its neighbour must be able to lose the cells that overlap it.
+OBSERVED_GROUNDED_HULL_MAX_EXTENT = 0.2
 #: Thickness (m) given to a flat observed mesh's box (a scan of one face has no volume).
 OBSERVED_MIN_THICKNESS = 0.01
 #: A large observed mesh collides as boxes over the grid cells its surface occupies: cells of at least
@@ -439,7 +442,10 @@ def observed_collisions(mesh: trimesh.Trimesh, grounded: bool = False) -> tuple[
         return ()
     lo, hi = np.asarray(mesh.bounds[0], np.float64), np.asarray(mesh.bounds[1], np.float64)
     pieces: list[trimesh.Trimesh] = []
-    if float(np.max(hi - lo)) <= OBSERVED_HULL_MAX_EXTENT:
+    # a movable scan is cut into cells from a smaller size on: the pieces of it inside another object
+    # (``observed_physics``) can then go without the rest
+    limit = min(OBSERVED_HULL_MAX_EXTENT, OBSERVED_GROUNDED_HULL_MAX_EXTENT) if grounded else OBSERVED_HULL_MAX_EXTENT
+    if float(np.max(hi - lo)) <= limit:
         try:
             hull = (_grounded(mesh, float(lo[2])) if grounded else mesh).convex_hull
             if len(hull.faces) and hull.volume > 1e-12:

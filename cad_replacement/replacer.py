@@ -522,7 +522,8 @@ class CadReplacer:
         if self.physical_check is not None:
             scene = self.physical_check(scene, alternatives)
             _note_switches(scene, records, alternatives)
-        _note_settled(records, settle_observed(scene.objects, drop=False))
+        # again after the check: it may have moved an object into an observed neighbour (snap, push-outs)
+        _note_settled(records, settle_observed(scene.objects))
         t2 = time.perf_counter()
         live = {n.id for n in graph.nodes.values()}
         for stale in set(self._results) - live:
