@@ -504,7 +504,8 @@ class CadReplacer:
                     rest_on(obj, z)
             if node.category != LAYOUT and mounted:
                 note = f"mounted on {parent} (a wall carries nothing from below): fixed joint"
-                record.message = "; ".join(m for m in (record.message, note) if m and m != note)
+                if note not in record.message:
+                    record.message = "; ".join(m for m in (record.message, note) if m)
             record.pose = obj.pose.tolist()
             record.scale = obj.scale.tolist()
             record.joint_values = dict(obj.joint_values)

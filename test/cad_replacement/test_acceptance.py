@@ -254,3 +254,27 @@ def test_a_backup_the_physical_check_swaps_in_passed_the_gate_and_is_named_in_th
     assert rejection(cand, rec.fit["ae_limit"], replacer.config) == ""  # type: ignore[arg-type]
     assert rec.cad_id == cand.key and result.scene.object("box_2").cad_id == cand.key  # type: ignore[attr-defined]
     assert "physical check:" in rec.message and rec.fit["ae_points"] == pytest.approx(cand.ae.ae_points)  # type: ignore[attr-defined]
+
+
+def test_an_object_the_graph_hangs_on_a_wall_is_mounted_there():
+    from recon_core.contact_graph import ContactGraph, GraphNode, SupportEdge
+    from recon_core.geometry.box_fit import fit_gravity_box
+
+    meshes = {
+        1: ("floor_1", "floor", "layout", trimesh.creation.box([3, 3, 0.02]).apply_translation([0, 0, -0.01])),
+        2: ("wall_2", "wall", "layout", trimesh.creation.box([3, 0.02, 2.0]).apply_translation([0, 1.5, 1.0])),
+        3: ("monitor_3", "monitor", "object", trimesh.creation.box([0.6, 0.05, 0.4]).apply_translation(
+            [0, 1.46, 1.2])),
+    }
+    graph = ContactGraph(name="wall")
+    ents = {}
+    for nid, (name, cls, cat, mesh) in meshes.items():
+        graph.nodes[nid] = GraphNode(nid, name, cls, cat, box=fit_gravity_box(np.asarray(mesh.vertices)),
+                                     movable=cls == "monitor")
+        ents[nid] = Entity.from_mesh(nid, name, cls, mesh)
+    graph.supports = {1: SupportEdge(0, 1), 2: SupportEdge(1, 2), 3: SupportEdge(2, 3, joint="floating")}
+    result = CadReplacer(CadLibrary(seeds_per_class=3), CadReplacementConfig(workers=1)).replace(graph, ents)
+    obj = result.scene.object("monitor_3")
+    assert obj.parent == "wall_2" and obj.support == "fixed"
+    rec = next(r for r in result.records if r.name == "monitor_3")
+    assert "mounted on wall_2" in rec.message
