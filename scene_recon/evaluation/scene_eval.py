@@ -77,7 +77,10 @@ def _library_model(library: CadLibrary, cad_id: str) -> CadModel | None:
 def scene_from_folder(folder: str | Path, library: CadLibrary) -> tuple[ReplacedScene, dict[str, dict[str, Any]]]:
     """The replaced scene of a `scene-recon replace` folder, rebuilt from replacement.json and the library.
 
-    Objects kept as their observed mesh are left out (they have no CAD model to compare)."""
+    An object kept as its observed mesh (no CAD model explained it) comes back as a box stand-in of its
+    recorded size (``cad_id`` observed..., model source ``box``): it carries its children in the support
+    tree, as in the exported scene, but it has no CAD pose to score and no mesh to measure penetration
+    with, so `evaluate_scene` leaves stand-ins out of both."""
     path = Path(folder) / "replacement.json"
     if not path.is_file():
         raise InputError(f"{path} not found: expected a folder written by `scene-recon replace`")
@@ -87,7 +90,7 @@ def scene_from_folder(folder: str | Path, library: CadLibrary) -> tuple[Replaced
     objects: list[PlacedObject] = []
     names: set[str] = {MAP_ROOT}
     for o in data["scene"]["objects"]:
-        if o["cad_id"].startswith("box"):
+        if o["cad_id"].startswith(("box", "observed")):
             model = box_model(o["class_name"], o["model_size"])
         else:
             base = _library_model(library, o["cad_id"])
@@ -179,7 +182,10 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
         assert gt_model is not None
         evals.append(evaluate_object(rep, gt_model, gt.pose, gt.joint_values))  # type: ignore[arg-type]
         matched += 1
-    penetrations = pair_penetrations(scene)
+    # stand-ins of observed meshes rebuilt from a folder (see scene_from_folder) have no geometry to measure
+    measured = [o for o in scene if not (o.cad_id.startswith("observed") and o.model.source == "box")]
+    penetrations = pair_penetrations(ReplacedScene(scene.name, measured, frame_id=scene.frame_id)) \
+        if len(measured) < len(scene.objects) else pair_penetrations(scene)
     worst = max((d for _a, _b, d in penetrations), default=0.0)
     gaps = []
     for obj in scene:

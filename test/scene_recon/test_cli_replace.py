@@ -29,7 +29,10 @@ def test_replace_writes_a_loadable_scene_folder_and_eval_scene_scores_it(tmp_pat
     assert cad and all(o["candidates"] and o["cad_id"] for o in cad)
     assert main(["eval-scene", str(out), str(gt_dir), "--seeds-per-class", "3", "--json"]) == 0
     figures = json.loads(capsys.readouterr().out)
-    assert figures["matched"] == figures["ground_truth_objects"] > 0
+    # every object is accounted for: CAD-placed and matched, or kept as its observed mesh by the stage-4
+    # gate (this 3-model library explains some objects too poorly), never lost
+    fallbacks = sum(1 for o in detail["objects_detail"] if o["kind"] == "observed_mesh" and o["candidates"])
+    assert figures["matched"] + fallbacks == figures["ground_truth_objects"] > 0 and figures["matched"] > 0
     assert figures["objects"]["pose_success"] >= 0.75
     assert figures["max_interpenetration_m"] <= 0.01
     # The support tree is kept. (The GED total is not asserted: this library does not hold the
