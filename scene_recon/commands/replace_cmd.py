@@ -9,6 +9,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from scene_recon.commands.common import add_preset_option, preset_from_args, print_json
 
 log = logging.getLogger(__name__)
@@ -95,11 +97,20 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(summary)
         return 0
-    print(f"{'object':20s} {'class':10s} {'kind':14s} {'CAD model':34s} {'AE mm':>6s}")
+    print(f"{'object':20s} {'class':10s} {'kind':14s} {'CAD model':34s} {'AE mm':>6s}  why")
     for r in result.records:
         ae = next((c["alignment_error"] for c in r.candidates if c["cad_id"] == r.cad_id), None)
-        ae_txt = f"{1000 * ae:6.1f}" if ae is not None else "     -"
-        print(f"{r.name[:20]:20s} {r.class_name[:10]:10s} {r.kind:14s} {r.cad_id[:34]:34s} {ae_txt}")
+        ae_txt = f"{1000 * ae:6.1f}" if ae is not None and np.isfinite(ae) else "     -"
+        # the stage-4 gate's word: why an object stays its observed mesh, or which class it replaced
+        why = r.reason or ""
+        if r.substituted_from:
+            why = f"replaces detected class {r.substituted_from} (clearly better fit) {why}".strip()
+        print(f"{r.name[:20]:20s} {r.class_name[:10]:10s} {r.kind:14s} {r.cad_id[:34]:34s} {ae_txt}  {why}")
+    fallbacks = [r for r in result.records if r.kind == "observed_mesh" and r.candidates]
+    swapped = [r for r in result.records if r.substituted_from]
+    if fallbacks or swapped:
+        print(f"{len(fallbacks)} object(s) kept as their observed mesh (no model explains them), "
+              f"{len(swapped)} replaced by another class")
     print(f"{len(result.scene)} objects in {summary['wall_s']:.2f} s ({result.rematched} matched); wrote {urdf}, "
           f"{exported.mjcf.name}, {exported.joint_states.name}, replacement.json"
           + (f", {exported.glb.name}" if exported.glb else "") + (f", {picture.name}" if picture else ""))
