@@ -166,6 +166,9 @@ class MapperNodeConfig(Settings):
                                          "of config/data.yaml)")
     gravity_stride: int = setting(3, min=0, doc="every n-th frame goes to the gravity check (0: gravity.stride); "
                                   "with gravity_align, window x stride frames (1 s at 30 Hz) wait for it")
+    gravity_pause_s: float = setting(0.0, min=0.0, doc="a gravity window whose stream pauses this long (s) decides "
+                                     "on the frames it has (0: 4 x tf_wait_s, at least 1 s); a service asking "
+                                     "for the map (extract_entities, save_map) decides it at once")
     imu_topic: str = setting("", doc="sensor_msgs/Imu topic whose accelerometer checks the map frame's up (TF "
                              "rotates each reading into the map frame; the verdict goes to the map's gravity "
                              "record as `imu`); empty: no IMU")
@@ -186,7 +189,7 @@ class MapperNode(Node):
         self._seg_seen = False
         self.tf_wait_s = max(settings.tf_wait_s, settings.tf_wait_reliable_s) if settings.tf_reliable \
             else settings.tf_wait_s
-        self.hold_idle_s = self.HOLD_IDLE_FACTOR * max(settings.tf_wait_s, 0.25)
+        self.hold_idle_s = settings.gravity_pause_s or self.HOLD_IDLE_FACTOR * max(settings.tf_wait_s, 0.25)
         self.publish_period_s = settings.publish_period_s
         self.include_meshes = settings.publish_meshes
         self.max_queue = settings.max_queue
@@ -497,6 +500,31 @@ class MapperNode(Node):
         if self._held:  # a save that early: held frames go to the map right after (the window stays open)
             self.get_logger().warning(f"map written while {len(self._held)} frames wait for the gravity check")
         return snapshot
+
+    def _flush_held(self, why: str) -> None:
+        """A service asks for the map while the gravity window holds frames (a short or paused stream):
+        the window decides on what it has and its frames go to the map now, in order (caller holds the
+        map's lock). Keyframes wait for their labels as in the loop, at most the segmentation timeout."""
+        if not self._held and not self._released:
+            return
+        n = len(self._held) + len(self._released)
+        if self._held:
+            self._decide_alignment(why)
+        deadline = time.monotonic() + self.seg_timeout_s + 1.0
+        while time.monotonic() < deadline:
+            self._collect_segmentations()
+            if self._released and not (self.in_order and self.pending):
+                held, held_color, held_depth = self._released.popleft()
+                held.index = self.mapper.frames_integrated
+                self._route(held, held_color, held_depth)
+            elif self.pending and not self._released and not self.in_order:
+                break  # out of order: the labels integrate when they come
+            elif self.pending:
+                time.sleep(0.01)  # the labels arrive on another executor thread
+            else:
+                break
+        self.get_logger().info(f"{why}: the gravity window's {n} frames went to the map "
+                               f"({self.mapper.frames_integrated} frames integrated)")
 
     def _gravity_record(self) -> dict:
         """The map's gravity record: the depth check's (GravityMonitor), with the IMU check's as `imu`."""
@@ -855,6 +883,7 @@ class MapperNode(Node):
         try:
             folder = self._confined(req.path)
             with self._service_turn():
+                self._flush_held("save_map asked for the map")
                 snapshot = self._snapshot()
                 ents = self.mapper.entities()
             snapshot.write(folder)
@@ -911,6 +940,7 @@ class MapperNode(Node):
         t0 = time.perf_counter()
         try:
             with self._service_turn():
+                self._flush_held("extract_entities asked for the map")
                 ents = self.mapper.entities(with_meshes=True)  # boxes come from the meshes
                 frames = self.mapper.frames_integrated
             res.entities = self._entities_msg(ents, req.include_meshes, publishing=False, frames=frames)
