@@ -3,12 +3,14 @@
     ros2 launch scene_recon mapping.launch.py source:=out/demo/scene backend:=oracle \
         ground_truth:=out/demo/scene_groundtruth
 On a robot, leave `source` empty and remap the mapper's camera topics to the driver's.
+`out:=FOLDER` (default scene_recon_data, as `bag.launch.py`): the mapper's checkpoints and saved maps go
+to FOLDER/map, not into the current directory.
 """
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration, PythonExpression
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution, PythonExpression
 from launch_ros.actions import Node
 
 
@@ -24,6 +26,8 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("ground_truth", default_value="", description="oracle: *_groundtruth folder"),
         DeclareLaunchArgument("noise_level", default_value="default"),
         DeclareLaunchArgument("mode", default_value="full", description="mapper: full | baseline"),
+        DeclareLaunchArgument("out", default_value="scene_recon_data",
+                              description="output folder: <out>/map (checkpoints, saved maps)"),
     ]
     segmentation = Node(
         package="scene_recon", executable="segmentation_service", name="segmentation_service", output="screen",
@@ -37,7 +41,8 @@ def generate_launch_description() -> LaunchDescription:
     )
     mapper = Node(
         package="scene_recon", executable="panoptic_mapper", name="panoptic_mapper", output="screen",
-        parameters=[{"mode": LaunchConfiguration("mode"), "class_table": LaunchConfiguration("classes")}],
+        parameters=[{"mode": LaunchConfiguration("mode"), "class_table": LaunchConfiguration("classes"),
+                     "data_root": PathJoinSubstitution([LaunchConfiguration("out"), "map"])}],
     )
     player = Node(
         package="scene_recon", executable="rgbd_player", name="rgbd_player", output="screen",

@@ -18,6 +18,8 @@ rather than silently accepted and ignored.
 from __future__ import annotations
 
 import array
+import difflib
+import types
 import typing
 from pathlib import Path
 from typing import Any, TypeVar
@@ -49,7 +51,12 @@ _ARRAY_TYPES: dict[Any, Parameter.Type] = {
 
 
 def parameter_type(annotation: Any) -> Parameter.Type | None:
-    """ROS parameter type of a config field's annotation; None when ROS has no such type (mappings)."""
+    """ROS parameter type of a config field's annotation; None when ROS has no such type (mappings).
+
+    An optional field (`float | None`) has its value's type; None is a parameter that is not set."""
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        inner = [a for a in typing.get_args(annotation) if a is not type(None)]
+        return parameter_type(inner[0]) if len(inner) == 1 else None
     if annotation in _SCALAR_TYPES:
         return _SCALAR_TYPES[annotation]
     if typing.get_origin(annotation) is typing.Literal:
@@ -131,6 +138,10 @@ def declare_config(node: Node, cls: type[T], yaml_path: str | Path | None = None
     for name, (_, ptype) in declared.items():
         value = _plain(effective[name])
         param = node.get_parameter(name)
+        if value is None:  # an optional setting left unset: the parameter stays NOT_SET
+            if param.type_ != Parameter.Type.NOT_SET:
+                updates.append(Parameter(name, Parameter.Type.NOT_SET, None))
+            continue
         if param.type_ != ptype or repr(_plain(param.value)) != repr(value):
             updates.append(Parameter(name, ptype, value))
     for param, result in zip(updates, node.set_parameters(updates), strict=True):
@@ -150,6 +161,39 @@ def declare_config(node: Node, cls: type[T], yaml_path: str | Path | None = None
     return config
 
 
+#: Parameters rclpy or a launch system may set on any node; never reported as unknown.
+_FRAMEWORK_PARAMETERS = ("use_sim_time", "start_type_description_service", "qos_overrides.")
+
+
+def unknown_parameters(node: Node) -> dict[str, str]:
+    """Parameters given to the node (`-p name:=value`, a launch file, a params file) that it does not
+    declare, each with the nearest declared name ("" when none is close): rclpy ignores them silently."""
+    declared = [n for n in node._parameters if not n.startswith(_FRAMEWORK_PARAMETERS)]
+    leaves = {n: n.rsplit(".", 1)[-1] for n in declared}
+    out: dict[str, str] = {}
+    for name in node._parameter_overrides:  # rclpy keeps the overrides it was given here
+        if name in node._parameters or name.startswith(_FRAMEWORK_PARAMETERS):
+            continue
+        leaf = name.rsplit(".", 1)[-1]
+
+        def score(candidate: str, name: str = name, leaf: str = leaf) -> float:
+            return max(difflib.SequenceMatcher(None, name, candidate).ratio(),
+                       difflib.SequenceMatcher(None, leaf, leaves[candidate]).ratio())
+
+        best = max(declared, key=score, default="")
+        out[name] = best if best and score(best) >= 0.6 else ""
+    return out
+
+
+def warn_unknown_parameters(node: Node) -> dict[str, str]:
+    """Warn about every parameter the node was given but does not have, naming the nearest valid one."""
+    unknown = unknown_parameters(node)
+    for name, near in sorted(unknown.items()):
+        hint = f"; did you mean '{near}'?" if near else "; `ros2 param list` shows the valid names"
+        node.get_logger().warning(f"unknown parameter '{name}' is ignored{hint}")
+    return unknown
+
+
 def _plain(value: Any) -> Any:
     """Parameter values as Python lists and scalars (rclpy may hand out arrays; configs hold tuples)."""
     if isinstance(value, (array.array, tuple, list)):
@@ -157,4 +201,5 @@ def _plain(value: Any) -> Any:
     return value
 
 
-__all__ = ["CONFIG_FILE_PARAMETER", "declare_config", "declare_config_file", "parameter_type"]
+__all__ = ["CONFIG_FILE_PARAMETER", "declare_config", "declare_config_file", "parameter_type",
+           "unknown_parameters", "warn_unknown_parameters"]

@@ -44,7 +44,7 @@ from ros_nodes.conversions import (
     ns_to_stamp,
     rgb_to_image,
 )
-from ros_nodes.parameters import declare_config
+from ros_nodes.parameters import declare_config, warn_unknown_parameters
 from ros_nodes.qos import SENSOR_RECORDING, TF_DYNAMIC
 from ros_nodes.runner import init_ros
 
@@ -291,6 +291,7 @@ class RGBDPlayer(Node):
 def main(args: list[str] | None = None) -> int:
     stop = init_ros(args)  # SIGINT/SIGTERM set `stop`: the loop ends, the node is destroyed, exit 0
     node = RGBDPlayer()
+    warn_unknown_parameters(node)
     try:
         while rclpy.ok() and not node.finished and not stop.is_set():
             rclpy.spin_once(node, timeout_sec=0.1)

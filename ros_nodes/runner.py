@@ -22,6 +22,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.timer import Timer
 
 from recon_core.ros_env import ensure_ros_environment
+from ros_nodes.parameters import warn_unknown_parameters
 
 #: How often (s) the spin loop looks at the stop flag.
 STOP_POLL_S = 0.1
@@ -64,7 +65,28 @@ def spin_until_stopped(node: Node, stop: threading.Event, threads: int = 1) -> N
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        _drain(executor, node, timeout_s=30.0)
         executor.shutdown(timeout_sec=30)
+
+
+def _drain(executor: Executor, node: Node, timeout_s: float) -> None:
+    """Let the callbacks already handed to a multi-threaded executor's thread pool finish, before the
+    executor is shut down. rclpy's `Executor.shutdown` destroys its guard condition first and joins the
+    pool after: a queued callback (one whose mutually exclusive group was busy) then triggered the
+    destroyed guard and died with InvalidHandle, printed at exit as `The following exception was never
+    retrieved: cannot use Destroyable because destruction was requested`. A callback that failed on
+    its own is logged here instead of that line."""
+    import time
+
+    tasks = list(getattr(executor, "_futures", ()))
+    deadline = time.monotonic() + timeout_s
+    while any(not t.done() for t in tasks) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    for task in tasks:
+        if task.done():
+            exc = task.exception()  # marks it retrieved
+            if exc is not None:
+                node.get_logger().error(f"a callback failed while stopping: {type(exc).__name__}: {exc}")
 
 
 def shutdown_node(node: Node) -> None:
@@ -83,6 +105,7 @@ def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads
     """Create the node with `factory` and spin it (on `threads` executor threads); returns the exit code."""
     stop = init_ros(args)
     node = factory()
+    warn_unknown_parameters(node)
     try:
         spin_until_stopped(node, stop, threads)
     finally:

@@ -59,7 +59,7 @@ from recon_core.config import ConfigError, Settings, setting
 from recon_core.frame import DatasetError
 from ros_nodes import diagnostics as diag
 from ros_nodes.conversions import image_to_depth, image_to_labels, image_to_rgb, labels_to_image, stamp_to_ns
-from ros_nodes.parameters import declare_config, declare_config_file
+from ros_nodes.parameters import declare_config, declare_config_file, warn_unknown_parameters
 from ros_nodes.qos import SENSOR_RECORDING
 from ros_nodes.runner import init_ros, shutdown_node, spin_until_stopped, steady_timer
 
@@ -293,6 +293,7 @@ def main(args: list[str] | None = None) -> int:
         rclpy.logging.get_logger(NODE_NAME).fatal(f"cannot start: {exc}")
         rclpy.try_shutdown()
         return 1
+    warn_unknown_parameters(node)
     try:
         spin_until_stopped(node, stop, threads=2)
     finally:

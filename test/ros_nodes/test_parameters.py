@@ -210,3 +210,76 @@ def test_every_node_declares_its_schema(which):
             node.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+@dataclass
+class _Optional(Settings):
+    distance: float | None = None
+    count: int = setting(3, min=1)
+    section: _Section = field(default_factory=_Section)
+
+
+def test_an_optional_setting_is_a_parameter_without_a_warning(ros_context, capfd):
+    """`float | None` (the CAD replacer's replace.plane_distance) is a double parameter, not set while
+    None: no start-up warning for a correct configuration (issue 24, item 5)."""
+    from rclpy.parameter import Parameter
+
+    from ros_nodes.parameters import declare_config
+
+    node = _node(ros_context)
+    try:
+        cfg = declare_config(node, _Optional, prefix="replace.")
+        assert cfg.distance is None and node.get_parameter("replace.distance").type_ == Parameter.Type.NOT_SET
+    finally:
+        node.destroy_node()
+    node = _node(ros_context, ("replace.distance", 0.02))
+    try:
+        cfg = declare_config(node, _Optional, prefix="replace.")
+        assert cfg.distance == 0.02 and node.get_parameter("replace.distance").type_ == Parameter.Type.DOUBLE
+    finally:
+        node.destroy_node()
+    assert "cannot be a ROS parameter" not in capfd.readouterr().err
+
+
+def test_an_unknown_parameter_is_warned_about_with_the_nearest_name(ros_context, capfd):
+    from ros_nodes.parameters import declare_config, warn_unknown_parameters
+
+    node = _node(ros_context, ("cuont", 4), ("section.shar", 0.3), ("share", 0.3), ("zzqqxx", 1), ("count", 5),
+                 ("use_sim_time", True))
+    try:
+        declare_config(node, _Schema)
+        unknown = warn_unknown_parameters(node)
+    finally:
+        node.destroy_node()
+    assert unknown == {"cuont": "count", "section.shar": "section.share", "share": "section.share", "zzqqxx": ""}
+    err = capfd.readouterr().err
+    assert "unknown parameter 'cuont' is ignored; did you mean 'count'?" in err
+    assert "unknown parameter 'zzqqxx' is ignored; `ros2 param list` shows the valid names" in err
+
+
+@pytest.mark.parametrize("which", ["mapper", "cad_replacer"])
+def test_nodes_start_and_stop_with_clean_logs(which, tmp_path):
+    """A node started with a correct configuration (and one misspelled parameter) logs no warning but the
+    one naming the nearest valid parameter; SIGINT stops it with exit 0 and no exception text (rclpy's
+    `The following exception was never retrieved: cannot use Destroyable ...`)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id("spare1")))
+    module, extra = {"mapper": ("ros_nodes.mapper_node", ["-p", f"data_root:={tmp_path}", "-p", "voxel_size:=2",
+                                                          "-p", "status_period_s:=0.2"]),
+                     "cad_replacer": ("ros_nodes.cad_replacer_node", ["-p", f"output_dir:={tmp_path}",
+                                                                      "-p", "replace.plane_distanse:=0.01"])}[which]
+    proc = subprocess.Popen([sys.executable, "-m", module, "--ros-args", *extra], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    time.sleep(8.0)  # up, timers and services running on their executor threads
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 0, out[-3000:]
+    assert "never retrieved" not in out and "Traceback" not in out and "Destroyable" not in out, out[-3000:]
+    warnings = [line for line in out.splitlines() if "[WARN]" in line or "[ERROR]" in line]
+    near = {"mapper": "'voxel_size' is ignored; did you mean 'tsdf.voxel_size_m'?",
+            "cad_replacer": "'replace.plane_distanse' is ignored; did you mean 'replace.plane_distance'?"}[which]
+    assert len(warnings) == 1 and near in warnings[0], warnings
