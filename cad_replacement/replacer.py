@@ -163,6 +163,10 @@ def support_height(edge: SupportEdge | None, parent: GraphNode | None, child_box
         z = float(-plane.d / plane.normal[2])
     elif parent is not None and parent.box is not None:
         z = parent.box.z_max
+    if z is not None and child_box is not None and z > child_box.z_max:
+        # a support above the whole object carries nothing of it (a ceiling taken for the floor would lift
+        # every object 1.7 m; docs/REAL_DATA_TUM.md): the object keeps its own bottom
+        return child_box.z_min
     if z is None or child_box is None or child_box.z_min - z <= MAX_SUPPORT_GAP:
         return z
     if parent is not None and parent.category == LAYOUT and max_size is not None \

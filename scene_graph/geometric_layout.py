@@ -183,13 +183,19 @@ def layout_from_geometry(surface: Entity, context: list[Entity], cfg: GeometricL
     flat = (np.abs(normal[:, 2]) >= HORIZONTAL_NZ) & (area > 0)
     tri_z = surface.vertices[surface.faces][:, :, 2]
     groups = height_groups(centroid[flat, 2], area[flat], cfg.floor_min_area, cfg.plane_thickness)
+    # The floor is seen from above: its candidates are up-facing surface only (a camera under a ceiling
+    # with no floor in view mapped the ceiling as the lowest large horizontal surface, and every object
+    # was then stood on it; a real TUM-layout desk recording, docs/REAL_DATA_TUM.md)
+    up = flat & (normal[:, 2] > 0)
+    up_groups = height_groups(centroid[up, 2], area[up], cfg.floor_min_area, cfg.plane_thickness)
     out: dict[str, Entity] = {}
     used = np.zeros(len(area), bool)
     z_floor: float | None = None
-    if groups:
-        largest = max(a for _h, a in groups)
+    largest = max((a for _h, a in groups), default=0.0)
+    floors = sorted((h, a) for h, a in up_groups if a >= cfg.floor_min_share * largest)
+    if floors:
         big = sorted((h, a) for h, a in groups if a >= cfg.floor_min_share * largest)
-        z_floor, floor_area = big[0]
+        z_floor, floor_area = floors[0]
         # every face within the band (both faces of a slab and its rim, the foot of a wall)
         fmask = np.all(np.abs(tri_z - z_floor) <= cfg.thickness, axis=1)
         out["floor"] = sub_entity(surface, fmask)

@@ -187,6 +187,21 @@ def test_support_height_trusts_the_plane_only_near_the_observed_bottom():
     assert support_height(edge, cabinet, bottle) == pytest.approx(1.075)  # no plane there: its bottom
 
 
+def test_a_support_above_the_whole_object_carries_nothing_of_it():
+    """A support plane above the object's top (a ceiling taken for the floor) never lifts it: the
+    object keeps its own bottom."""
+    from cad_replacement.replacer import support_height
+    from recon_core.contact_graph import GraphNode, SupportEdge
+    from recon_core.geometry.box import GravityBox
+    from recon_core.geometry.plane import Plane
+
+    ceiling_floor = GraphNode(1, "floor_1", "floor", "layout",
+                              box=GravityBox(np.array([0.0, 0.0, 1.7]), np.array([5.0, 5.0, 0.02]), 0.0))
+    edge = SupportEdge(parent_id=1, child_id=2, plane=Plane(np.array([0.0, 0.0, 1.0]), -1.71))
+    cup = GravityBox(np.array([0.0, 0.0, 0.05]), np.array([0.08, 0.08, 0.1]), 0.0)
+    assert support_height(edge, ceiling_floor, cup, max_size=0.3) == pytest.approx(0.0)
+
+
 def test_support_height_on_the_floor_reaches_down_for_furniture_only():
     """A mapped table whose top alone got the label stands on the floor (its legs were missed): its
     support is the floor when the class can be that tall; a cup seen at table height cannot."""

@@ -101,6 +101,21 @@ def test_ceiling_found_and_a_cabinet_front_is_no_wall():
     assert sum(n.class_name == "ceiling" for n in g.nodes.values()) == 1
 
 
+def test_a_ceiling_seen_from_below_is_never_the_floor():
+    """A desk recording under a ceiling, no floor in view: the lowest large horizontal surface faces
+    down (the ceiling, seen from below), so there is no floor; with the floor in view, the floor is
+    the up-facing surface even when the ceiling is larger."""
+    ceiling = patch([-2, -1.5, 2.5], [0, 3, 0], [4, 0, 0], 30, 40)  # wound to face down, as a TSDF sees it
+    assert ceiling.face_normals[:, 2].max() < -0.99
+    desk = patch([0, 0, 0.75], [1.2, 0, 0], [0, 0.6, 0], 12, 6)  # up-facing, 0.72 m^2
+    found = layout_from_geometry(unknown([ceiling, desk]), [], GeometricLayoutConfig(), SceneGraphConfig().layout)
+    assert "floor" not in found
+    floor = patch([-1, -1, 0], [2, 0, 0], [0, 2, 0], 20, 20)  # 4 m^2 of floor, the ceiling is 12 m^2
+    found = layout_from_geometry(unknown([ceiling, desk, floor]), [], GeometricLayoutConfig(),
+                                 SceneGraphConfig().layout)
+    assert found["floor"].vertices[:, 2].max() < 0.01
+
+
 def test_one_wall_and_no_floor_gives_only_that_wall():
     found = layout_from_geometry(unknown([patch(*WALLS["north"], [0, 0, 2.5])]), [], GeometricLayoutConfig(),
                                  SceneGraphConfig().layout)
