@@ -147,6 +147,30 @@ def _inspect_bag(path: Path, config: DataInputConfig, quick: bool) -> dict[str, 
         return info
 
 
+#: Median depths of an indoor RGB-D view (m) outside which the folder's depth unit is probably wrong.
+PLAUSIBLE_MEDIAN_DEPTH_M = (0.25, 8.0)
+
+
+def _depth_unit_check(raw: np.ndarray, units_per_m: float) -> dict[str, Any]:
+    """The first frame's median valid depth in metres, and a warning when it is implausible for an indoor
+    camera: a folder in millimetres read at TUM's 5000 units/m puts the scene 5x too close without a
+    word (a real TUM-layout desk recording, docs/REAL_DATA_TUM.md)."""
+    valid = raw[np.isfinite(raw) & (raw > 0)] if raw.dtype.kind == "f" else raw[raw > 0]
+    if valid.size == 0 or units_per_m <= 0:
+        return {}
+    median_m = float(np.median(valid)) / units_per_m
+    out: dict[str, Any] = {"depth_median_m": round(median_m, 3)}
+    lo, hi = PLAUSIBLE_MEDIAN_DEPTH_M
+    if not lo <= median_m <= hi:
+        guesses = [u for u in (1000.0, 5000.0, 10000.0) if u != units_per_m
+                   and lo <= float(np.median(valid)) / u <= hi]
+        out["depth_warning"] = (f"median depth of the first frame is {median_m:.2f} m at {units_per_m:g} depth units "
+                                f"per metre, implausible for an indoor camera"
+                                + (f": if the depth images are in other units, give --depth-scale {guesses[0]:g}"
+                                   if guesses else ""))
+    return out
+
+
 def _inspect_folder(path: Path, config: DataInputConfig, fmt: str, quick: bool) -> dict[str, Any]:
     loader = open_dataset(path, config)
     entries = loader.entries
@@ -180,6 +204,8 @@ def _inspect_folder(path: Path, config: DataInputConfig, fmt: str, quick: bool) 
     }
     if loader._k_depth is not None:
         info["depth_intrinsics"] = list(loader._k_depth)
+    if first_depth is not None:
+        info.update(_depth_unit_check(first_depth, float(loader.depth_scale)))
     if first_depth is not None and first is not None and first_depth.shape[:2] != first.shape[:2]:
         info["depth_resolution"] = [int(first_depth.shape[1]), int(first_depth.shape[0])]
         info["resampled_frames"] = loader.resampled_frames

@@ -74,6 +74,11 @@ def format_summary(info: dict) -> str:
         lines.append(f"intrinsics: fx={k[0]:g} fy={k[1]:g} cx={k[2]:g} cy={k[3]:g} from {info['intrinsics_source']}"
                      + (f"; depth camera {', '.join(f'{v:g}' for v in info['depth_intrinsics'])}"
                         if "depth_intrinsics" in info else ""))
+    if "depth_median_m" in info:
+        lines.append(f"depth: median {info['depth_median_m']:.2f} m in the first frame "
+                     f"({info.get('depth_scale', 0):g} units per metre)")
+    if info.get("depth_warning"):
+        lines.append(f"warning: {info['depth_warning']}")
     where = f" in '{info['map_frame']}' from '{info['camera_frame']}'" if "map_frame" in info else ""
     coverage = 100 * info["pose_coverage"]
     lines.append(f"poses: {info['posed_frames']}/{info['frames']} frames posed ({coverage:.1f}%){where}")

@@ -123,3 +123,17 @@ def test_run_stops_after_a_map_without_objects_and_forwards_data_options(world_b
     assert (out / "map" / "entities.json").is_file() and not (out / "graph").exists()
     assert main(["run", str(world_bag), "--out", str(tmp_path / "run2")]) == 2  # without --map-frame: no pose
     assert "pass --map-frame world" in capsys.readouterr().err
+
+
+def test_inspect_warns_when_a_folders_depth_unit_looks_wrong(tmp_path, capsys):
+    """A TUM-layout folder in millimetres is read at TUM's 5000 units/m: 1.2 m becomes 0.24 m. inspect
+    says so and names the scale that fits; at the right scale it reports the depth quietly."""
+    folder = tmp_path / "desk"
+    tum(folder, 2, ray_color((60, 60, 39.5, 29.5), 80, 60), np.full((60, 80), 1200, np.uint16),
+        poses=[np.eye(4)] * 2)
+    assert main(["inspect", str(folder), "--intrinsics", "60,60,39.5,29.5"]) == 0
+    out = capsys.readouterr().out
+    assert "median 0.24 m" in out and "warning:" in out and "--depth-scale 1000" in out
+    assert main(["inspect", str(folder), "--intrinsics", "60,60,39.5,29.5", "--depth-scale", "1000"]) == 0
+    out = capsys.readouterr().out
+    assert "median 1.20 m" in out and "warning:" not in out
