@@ -97,7 +97,7 @@ from ros_nodes.conversions import (
 )
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, map_markers
 from ros_nodes.parameters import declare_config, declare_config_file
-from ros_nodes.qos import ENTITIES, RECORDING_DEPTH, STATUS, TF_STATIC
+from ros_nodes.qos import ENTITIES, PROGRESS_TOPIC, RECORDING_DEPTH, STATUS, TF_STATIC
 from ros_nodes.runner import run_node, steady_timer
 from ros_nodes.sensor_subscription import SensorSubscription
 from ros_nodes.tf_listener import TFListener
@@ -279,6 +279,11 @@ class MapperNode(Node):
         # under load went from < 1 s to 2-6 s (test_node_faults); its duty cycle is capped (PUBLISH_DUTY)
         steady_timer(self, self.publish_period_s, self._publish, self.map_group)
         steady_timer(self, settings.status_period_s, self._report, inputs)
+        # back-pressure for a played recording (rgbd_player's pace_topic): which frames are still to be done
+        self.pub_progress = self.create_publisher(String, PROGRESS_TOPIC, STATUS)
+        self._progress_sent: tuple = ()
+        self._progress_at = 0.0
+        steady_timer(self, self.PROGRESS_PERIOD_S, self._publish_progress, MutuallyExclusiveCallbackGroup())
         self.diagnostics = diag.NodeDiagnostics(self, "panoptic mapping", self.health, callback_group=inputs)
         self._publish_alignment()  # a resumed map keeps its frame
         self.get_logger().info(f"data root {self.data_root}; checkpoints "
@@ -353,6 +358,8 @@ class MapperNode(Node):
 
     def _enqueue(self, color: Image, depth: Image) -> None:
         self.queue.append((color, depth, time.monotonic()))
+        stamp = stamp_to_ns(depth.header.stamp)
+        self._newest_received = stamp if self._newest_received is None else max(self._newest_received, stamp)
         self.counters["received"] += 1
         self.input_rate.tick()
         self._camera_frame = color.header.frame_id
@@ -813,6 +820,39 @@ class MapperNode(Node):
         if h.level == diag.OK:
             h.message = f"{self.mapper.frames_integrated} frames integrated, queue {self._queued()}"
         return h
+
+    #: Period (s) of `mapper_progress` (published when it changed, and once a second anyway).
+    PROGRESS_PERIOD_S = 0.05
+
+    def progress(self) -> dict:
+        """What `mapper_progress` says, for a player that paces itself by the mapper (rgbd_player's
+        pace_topic): the stamp of the oldest frame received and not yet done (queued, released by the
+        gravity window, or a keyframe waiting for its labels; frames the gravity window holds for more
+        frames are not behind and do not count), else None, and the newest stamp received. A frame
+        the player published is still to be done when its stamp is >= the oldest waiting one, or,
+        with none waiting, > the newest received (on its way)."""
+        oldest: list[int] = []
+        try:  # read without the map's lock (held through a long integration); a race is fixed next tick
+            if self.queue:
+                oldest.append(stamp_to_ns(self.queue[0][1].header.stamp))
+            if self._released:
+                oldest.append(stamp_to_ns(self._released[0][2].header.stamp))
+            oldest += [stamp_to_ns(p.depth_msg.header.stamp) for p in list(self.pending)]
+        except (IndexError, RuntimeError):
+            pass
+        return {"oldest_waiting_ns": min(oldest) if oldest else None, "newest_received_ns": self._newest_received,
+                "backlog": len(self.queue) + len(self._released) + len(self.pending),
+                "held_for_gravity": len(self._held)}
+
+    _newest_received: int | None = None
+
+    def _publish_progress(self) -> None:
+        progress = self.progress()
+        key = tuple(progress.values())
+        now = time.monotonic()
+        if key != self._progress_sent or now - self._progress_at > 1.0:
+            self._progress_sent, self._progress_at = key, now
+            self.pub_progress.publish(String(data=json.dumps(progress)))
 
     def _queued(self) -> int:
         """Frames not integrated yet: the queue and the gravity window's held and released frames."""

@@ -53,3 +53,7 @@ TF_LISTEN = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=R
 #: subscriber has acknowledged (`drain_timeout_s`): leaving 0.5 s after its last frame, it took the last 8
 #: poses with it once (maybe the "stall" noted above).
 TF_LISTEN_RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+#: The mapper's back-pressure topic (std_msgs/String, JSON; STATUS QoS): which played frames it has still
+#: to do. `rgbd_player` paces a recording by it (pace_topic), so a slow mapper is never outrun.
+PROGRESS_TOPIC = "mapper_progress"

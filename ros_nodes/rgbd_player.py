@@ -18,6 +18,8 @@ the reader skipped frames within the last seconds.
 
 from __future__ import annotations
 
+import collections
+import json
 import sys
 import time
 from dataclasses import dataclass
@@ -29,6 +31,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
+from std_msgs.msg import String
 from std_srvs.srv import SetBool
 from tf2_msgs.msg import TFMessage
 
@@ -45,7 +48,7 @@ from ros_nodes.conversions import (
     rgb_to_image,
 )
 from ros_nodes.parameters import declare_config, warn_unknown_parameters
-from ros_nodes.qos import SENSOR_RECORDING, TF_DYNAMIC
+from ros_nodes.qos import PROGRESS_TOPIC, SENSOR_RECORDING, STATUS, TF_DYNAMIC
 from ros_nodes.runner import init_ros
 
 
@@ -82,6 +85,16 @@ class RGBDPlayerConfig(Settings):
     #: which goes away with the player: after the last frame the player stays until every reliable
     #: subscriber has acknowledged everything (at most this long). Leaving 0.5 s after the last frame, the
     #: mapper's /tf reader of a loaded machine missed the last 8 poses of a 30-frame bag.
+    #: Back-pressure: a recording is played no faster than the mapper maps it. Once the mapper's progress
+    #: (`mapper_progress`) is heard, a frame waits while `pace_max_lag` published frames are still to be
+    #: done there (the schedule and /clock stand still meanwhile, as when paused), so a slow or loaded mapper
+    #: gets every frame, in order, and an oracle's label images are still buffered when it asks for them.
+    #: A mapper that makes no progress for `pace_timeout_s` is not waited for any more (warned).
+    pace_topic: str = setting(PROGRESS_TOPIC, doc="the mapper's progress topic the playback is paced by "
+                              "(empty: play at the recorded timing whatever the mapper does)")
+    pace_max_lag: int = setting(10, min=1, doc="frames published and not yet done by the mapper before "
+                                "playback waits")
+    pace_timeout_s: float = setting(60.0, min=0.0, doc="stop pacing after the mapper made no progress this long (s)")
     drain_timeout_s: float = setting(10.0, min=0.0, doc="after playing, wait at most this long (s) for reliable "
                                      "subscribers to acknowledge every message")
 
@@ -120,6 +133,17 @@ class RGBDPlayer(Node):
         self.create_service(SetBool, "~/set_paused", self._srv_set_paused)
         self.pub_labels = self.create_publisher(Image, "/ground_truth/panoptic_labels", SENSOR_RECORDING)
         self.pub_tf = self.create_publisher(TFMessage, "/tf", TF_DYNAMIC)
+        self.pace_max_lag = settings.pace_max_lag
+        self.pace_timeout_s = settings.pace_timeout_s
+        self._progress: dict | None = None  # the mapper's newest progress message
+        self._progress_changed = 0.0
+        self._sent_stamps: collections.deque[int] = collections.deque()  # published, maybe not done yet
+        self._pacing_since: float | None = None
+        self.paced_s = 0.0  # time spent waiting for the mapper
+        self.pace_waits = 0
+        self.pace_topic = settings.pace_topic
+        if settings.pace_topic:
+            self.create_subscription(String, settings.pace_topic, self._on_progress, STATUS)
         self.published = 0
         self.finished = False
         self.last_error = ""
@@ -149,6 +173,7 @@ class RGBDPlayer(Node):
             return
         self._frames = iter(self._loader)
         self._t0_wall = self._t0_data = None
+        self._sent_stamps.clear()  # a loop starts over: its stamps repeat (pacing by stamp restarts too)
         self._first_ns: int | None = None
 
     def _srv_set_paused(self, req: SetBool.Request, res: SetBool.Response) -> SetBool.Response:
@@ -164,6 +189,55 @@ class RGBDPlayer(Node):
         res.message = f"{'paused' if self.paused else 'playing'} after {self.published} frames"
         self.get_logger().info(res.message)
         return res
+
+    def _on_progress(self, msg: String) -> None:
+        try:
+            progress = json.loads(msg.data)
+        except ValueError:
+            return
+        if self._progress is None or {k: progress.get(k) for k in ("oldest_waiting_ns", "newest_received_ns")} != \
+                {k: self._progress.get(k) for k in ("oldest_waiting_ns", "newest_received_ns")}:
+            self._progress_changed = time.monotonic()
+        self._progress = progress
+
+    def lag(self) -> int:
+        """Published frames the mapper has still to do (0 before its progress was heard)."""
+        p = self._progress
+        if p is None:
+            return 0
+        oldest, newest = p.get("oldest_waiting_ns"), p.get("newest_received_ns")
+        sent = self._sent_stamps
+        if oldest is not None:
+            while sent and sent[0] < oldest:
+                sent.popleft()
+            return len(sent)
+        if newest is not None:
+            while sent and sent[0] <= newest:
+                sent.popleft()
+        return len(sent)
+
+    def _paced(self, now: float) -> bool:
+        """Whether the next frame waits for the mapper (back-pressure); the schedule moves by the wait."""
+        if self._progress is None or self.pace_max_lag <= 0:
+            return False
+        if self.lag() < self.pace_max_lag:
+            if self._pacing_since is not None:  # resume: the schedule moves by the time waited
+                waited = now - self._pacing_since
+                if self._t0_wall is not None:
+                    self._t0_wall += waited
+                self.paced_s += waited
+                self._pacing_since = None
+            return False
+        if self._pacing_since is None:
+            self._pacing_since = now
+            self.pace_waits += 1
+        if self.pace_timeout_s and now - max(self._progress_changed, self._pacing_since) > self.pace_timeout_s:
+            self.get_logger().warning(f"the mapper made no progress for {self.pace_timeout_s:g} s with "
+                                      f"{self.lag()} frames to do; playing on without pacing")
+            self.pace_max_lag = 0
+            self._pacing_since = None
+            return False
+        return True
 
     def data_time_ns(self, now: float) -> int | None:
         """The recording's time at wall time `now` (None before the first frame)."""
@@ -204,7 +278,9 @@ class RGBDPlayer(Node):
                     self._pending = frame
             except StopIteration:
                 skipped = {k: v for k, v in self._loader.skips.as_dict().items() if v}
-                self.get_logger().info(f"played {self.published} frames; skipped: {skipped or 'none'}")
+                paced = (f"; waited {self.paced_s:.1f} s for the mapper ({self.pace_waits} times)"
+                         if self.pace_waits else "")
+                self.get_logger().info(f"played {self.published} frames; skipped: {skipped or 'none'}{paced}")
                 if self.loop:
                     self._open()
                     return
@@ -218,6 +294,8 @@ class RGBDPlayer(Node):
         if self._t0_wall is None:
             self._t0_wall, self._t0_data = now, f.timestamp_ns
         due = self._t0_wall + (f.timestamp_ns - self._t0_data) * 1e-9 / max(self.rate, 1e-6)
+        if self._paced(now):
+            return  # the mapper is behind: this frame (and the clock) wait for it
         if now < due:
             if self.pub_clock is not None and now - self._last_clock >= self.clock_period_s:
                 self._last_clock = now
@@ -235,6 +313,8 @@ class RGBDPlayer(Node):
         if "labels" in f.extras:
             self.pub_labels.publish(labels_to_image(f.extras["labels"], stamp, self.camera_frame))
         self.published += 1
+        if self.pace_topic:
+            self._sent_stamps.append(stamp)
         self.publish_rate.tick(now)
         self.lateness_ms.add(1000 * (now - due))
         self._pending = None
@@ -276,6 +356,7 @@ class RGBDPlayer(Node):
             diag.KEY_SKIPPED: skipped, diag.KEY_QUEUE: int(self._pending is not None),
             "subscribers": min((p.get_subscription_count() for p in (self.pub_color, self.pub_depth, self.pub_tf)),
                                default=0),
+            "paced_s": round(self.paced_s, 2), "mapper_lag": self.lag(),
             diag.KEY_LAST_ERROR: self.last_error})
         if self._failed:
             h.escalate(diag.ERROR, self.last_error)

@@ -153,7 +153,8 @@ class SegmentationServiceConfig(Settings):
     """ROS-side settings of the service; the segmentation itself is `SegmentationConfig`."""
 
     labels_topic: str = setting(DEFAULT_LABELS_TOPIC, doc="oracle: ground-truth label images (32SC1)")
-    label_buffer: int = setting(30, min=1, doc="oracle: how many label images are kept")
+    label_buffer: int = setting(64, min=1, doc="oracle: how many label images are kept (a paced player runs at "
+                                "most the gravity window (30) + pace_max_lag (10) frames ahead of the requests)")
     label_wait_s: float = setting(0.5, min=0.0, doc="oracle: how long (s) a request waits for its label image")
     stats_period_s: float = setting(10.0, min=0.0, min_exclusive=True, doc="period (s) of the latency log")
 
