@@ -249,11 +249,18 @@ def run_protocol(spec: ProtocolSpec, out: Path, progress: Progress = print,
     c_start = time.process_time()
     total = len(spec.scenes) * len(spec.draws) * len(spec.variants)
     done = 0
+    journal = RunJournal(out / JOURNAL_NAME, spec, extra or {})
+    if journal.resumed:
+        progress(f"resuming: {journal.resumed} result(s) of an earlier, interrupted run of this protocol in "
+                 f"{journal.path} are kept")
     for scene in spec.scenes:
         progress(f"[{time.perf_counter() - t_start:6.0f} s] {scene}: generating (cached after the first time) ...")
         bag, gt = scene_paths(scene_definition(scene), progress=False)
         if spec.gt_entities:
-            g = gt_entity_row(scene, gt, library, work / scene / "gt_entities")
+            g = journal.get(("gt", scene))
+            if g is None:
+                g = gt_entity_row(scene, gt, library, work / scene / "gt_entities")
+                journal.add(("gt", scene), g)
             gt_rows.append(g)
             progress(f"         ground-truth entities: pose success {_fmt(g['pose_success'], pct=True)}, "
                      f"AE median {_fmt(g['ae_median_m'], mm=True)}, still {_fmt(g['stillness'], pct=True)}")
@@ -261,12 +268,16 @@ def run_protocol(spec: ProtocolSpec, out: Path, progress: Progress = print,
             for variant in spec.variants:
                 done += 1
                 label = f"{variant.label}/draw{draw}"
-                folder = work / scene / label.replace("/", "_")
-                overrides = _merged(extra or {}, variant.extra)
-                raw = run_pipeline(bag, gt, folder, RunSpec(label, mode=variant.mode, noise_seed=draw,
-                                                            extra=overrides), library, cache=StageCache(capacity=1))
-                shutil.rmtree(folder, ignore_errors=True)
-                row = _row(raw, scene, draw, variant)
+                row = journal.get(("run", scene, draw, variant.label))
+                if row is None:
+                    folder = work / scene / label.replace("/", "_")
+                    overrides = _merged(extra or {}, variant.extra)
+                    raw = run_pipeline(bag, gt, folder, RunSpec(label, mode=variant.mode, noise_seed=draw,
+                                                                extra=overrides), library,
+                                       cache=StageCache(capacity=1))
+                    shutil.rmtree(folder, ignore_errors=True)
+                    row = _row(raw, scene, draw, variant)
+                    journal.add(("run", scene, draw, variant.label), row)
                 rows.append(row)
                 progress(f"[{time.perf_counter() - t_start:6.0f} s] ({done}/{total}) {scene} draw {draw} "
                          f"{variant.label:8s} "
@@ -275,6 +286,7 @@ def run_protocol(spec: ProtocolSpec, out: Path, progress: Progress = print,
                          f"still {_fmt(row['stillness'], pct=True)}  {row['map_ms_per_frame']:.0f} ms/frame"
                          + (f"  false classes: {', '.join(row['false_classes'])}" if row["false_classes"] else ""))
     shutil.rmtree(work, ignore_errors=True)
+    journal.path.unlink(missing_ok=True)  # complete: results.json holds everything from here on
     summary = aggregate(rows, gt_rows)
     results = {"protocol": {"scenes": list(spec.scenes), "draws": list(spec.draws),
                             "variants": [vars(v) for v in spec.variants],
@@ -282,8 +294,50 @@ def run_protocol(spec: ProtocolSpec, out: Path, progress: Progress = print,
                                 s: vars(scene_definition(s)) for s in spec.scenes}},
                "summary": summary, "rows": rows, "gt_rows": gt_rows,
                "wall_s": round(time.perf_counter() - t_start, 1), "cpu_s": round(time.process_time() - c_start, 1),
+               "resumed_results": journal.resumed,
                "machine": {"cpus": os.cpu_count(), "load_avg": [round(x, 2) for x in os.getloadavg()]}}
     return results
+
+
+#: The journal of a protocol run in progress, in its output folder.
+JOURNAL_NAME = "runs.jsonl"
+
+
+class RunJournal:
+    """Every finished result of a protocol run, appended (one JSON line, flushed and synced) as it comes:
+    a long run killed or crashed (a native library once segfaulted after 62 of 72 runs) is continued by
+    running the same command again, and only the unfinished runs are computed. Lines from another
+    protocol (scenes, draws, variants, overrides) or a torn last line are ignored."""
+
+    def __init__(self, path: Path, spec: ProtocolSpec, extra: dict[str, Any]) -> None:
+        self.path = path
+        self.identity = json.dumps({"scenes": spec.scenes, "draws": spec.draws,
+                                    "variants": [vars(v) for v in spec.variants], "gt": spec.gt_entities,
+                                    "extra": extra}, sort_keys=True, default=str)
+        self.entries: dict[str, dict[str, Any]] = {}
+        if path.is_file():
+            for line in path.read_text(encoding="utf-8").splitlines():
+                try:
+                    item = json.loads(line)
+                except json.JSONDecodeError:
+                    continue  # a line torn by the crash
+                if isinstance(item, dict) and item.get("identity") == self.identity:
+                    self.entries[json.dumps(item["key"])] = item["row"]
+        self.resumed = len(self.entries)
+        if not self.resumed:
+            path.unlink(missing_ok=True)
+
+    def get(self, key: tuple[Any, ...]) -> dict[str, Any] | None:
+        return self.entries.get(json.dumps(list(key)))
+
+    def add(self, key: tuple[Any, ...], row: dict[str, Any]) -> None:
+        line = json.dumps({"identity": self.identity, "key": list(key), "row": _finite(row)}, allow_nan=False,
+                          default=str)
+        with self.path.open("a", encoding="utf-8") as f:
+            f.write(line + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        self.entries[json.dumps(list(key))] = row
 
 
 def _merged(a: dict[str, dict[str, Any]], b: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:

@@ -106,3 +106,38 @@ def test_a_tiny_protocol_end_to_end_writes_strict_json_a_table_and_a_plot(tmp_pa
     assert "| gen-tiny | full |" in report and "| gen-tiny | baseline |" in report
     assert files["plot"].stat().st_size > 1000
     assert not (tmp_path / "out" / "work").exists()  # per-run folders are removed
+
+
+def test_an_interrupted_protocol_continues_where_it_stopped(tmp_path, monkeypatch):
+    """Results are journalled as they come; running the same protocol again computes only what is
+    missing (a torn last line and another protocol's lines are ignored), and a finished run removes
+    the journal."""
+    from scene_recon.bench.robustness import JOURNAL_NAME, RunJournal
+
+    calls: list[tuple[int, str]] = []
+
+    def fake_pipeline(bag, gt, folder, spec, library, cache=None):
+        calls.append((spec.noise_seed, spec.mode))
+        return {"times_s": {"map": 1.0, "replace": 0.5}, "frames": 10, "pq": 80.0 + spec.noise_seed,
+                "pq_things": 70.0, "box_mAP": 0.5, "ged_ratio": 0.1, "pose_success": 0.5, "pose_recall": 0.4,
+                "ae_median_m": 0.01, "stillness": 1.0, "false_classes": []}
+
+    monkeypatch.setattr(robustness, "run_pipeline", fake_pipeline)
+    monkeypatch.setattr(robustness, "scene_paths", lambda scene, progress=False: (tmp_path / "bag", tmp_path / "gt"))
+    spec = ProtocolSpec(("bench-small",), (0, 1), gt_entities=False)
+    out = tmp_path / "out"
+    out.mkdir()
+    journal = RunJournal(out / JOURNAL_NAME, spec, {})
+    journal.add(("run", "bench-small", 0, "full"), {**fake_pipeline(None, None, None, robustness.RunSpec(
+        "x", noise_seed=0), None), "pq": 12.5, "scene": "bench-small", "draw": 0, "mode": "full",
+        "map_ms_per_frame": 100.0, "replace_s": 0.5})
+    calls.clear()
+    with (out / JOURNAL_NAME).open("a") as f:
+        f.write('{"identity": "another protocol", "key": ["run", "bench-small", 1, "full"], "row": {}}\n')
+        f.write('{"identity": "torn')
+    lines: list[str] = []
+    results = run_protocol(spec, out, lines.append)
+    assert sorted(calls) == [(0, "baseline"), (1, "baseline"), (1, "full")]  # the journalled run is kept
+    assert results["resumed_results"] == 1 and any("resuming: 1 result" in line for line in lines)
+    assert [r["pq"] for r in results["rows"] if r["mode"] == "full"] == [12.5, 81.0]
+    assert not (out / JOURNAL_NAME).exists()
