@@ -95,3 +95,26 @@ def test_the_pip_keys_name_pip_packages_of_requirements_txt():
     for key in {k for k in _declared() if k.endswith("-pip")}:
         dist = key.removeprefix("python3-").removesuffix("-pip")
         assert dist in pip or dist.replace("-", "_") in pip or {"open3d": "open3d-cpu"}.get(dist) in pip, key
+
+
+def _pins(name: str) -> dict[str, str]:
+    pins = {}
+    for line in (ROOT / name).read_text().splitlines():
+        line = line.split("#")[0].strip()
+        if line:
+            dist = re.split(r"[=<>!~;\[ ]", line)[0].lower()
+            pins[dist] = line[len(dist):].strip()
+    return pins
+
+
+def test_the_stock_ros_requirements_complete_package_xml():
+    """requirements-ros.txt (pip, in a venv over /opt/ros): no ROS wheel, numpy kept below 2 (ROS's compiled
+    modules), every pip-only and pip-key package, at requirements.txt's pins."""
+    stock, venv = _pins("requirements-ros.txt"), _pins("requirements.txt")
+    assert not [d for d in stock if d.startswith(("ros-", "colcon"))]
+    assert stock.pop("numpy") == "<2"
+    pip_keys = {k.removeprefix("python3-").removesuffix("-pip") for k in _declared() if k.endswith("-pip")}
+    needed = set(PIP_ONLY.values()) | {{"open3d": "open3d-cpu"}.get(d, d) for d in pip_keys}
+    assert needed <= set(stock), needed - set(stock)
+    for dist, pin in stock.items():
+        assert venv.get(dist) == pin, (dist, pin, venv.get(dist))
