@@ -206,6 +206,8 @@ class RGBDPlayer(Node):
         if p is None:
             return 0
         oldest, newest = p.get("oldest_waiting_ns"), p.get("newest_received_ns")
+        if oldest is None and newest is None:
+            return 0  # a mapper that received nothing yet (starting, or restarted after a crash): no pacing yet
         sent = self._sent_stamps
         if oldest is not None:
             while sent and sent[0] < oldest:
