@@ -16,7 +16,6 @@ from testsupport.ros import domain_id, spin_until
 
 pytestmark = pytest.mark.ros
 
-K_SMALL = (131.25, 131.25, 79.5, 59.5)
 #: The TF map frame: tilted 63 deg about x and 20 deg about y (up is 65 deg from its +z), shifted.
 TILT = np.eye(4)
 TILT[:3, :3] = Rotation.from_euler("xy", [63, 20], degrees=True).as_matrix()
@@ -26,23 +25,9 @@ Z = np.array([0.0, 0.0, 1.0])
 
 def _tilted_tum(folder, frames: int = 16):
     """A TUM folder of the toy room (160x120, intrinsics in camera-intrinsics.txt) with poses in TILT."""
-    from testsupport.frames import tum
+    from testsupport.frames import toy_room_tum
 
-    from recon_core.frame import CameraIntrinsics
-    from scene_recon.synthetic.geometry import look_at_pose
-    from scene_recon.synthetic.sensor import RGBDSensorSimulator
-    from scene_recon.synthetic.toy_scene import make_toy_scene
-
-    sim = RGBDSensorSimulator(make_toy_scene(6, 1).items, CameraIntrinsics(*K_SMALL, 160, 120))
-    depths, poses = [], []
-    for k in range(frames):
-        yaw = 2 * np.pi * k / frames
-        pose = look_at_pose(np.array([0.0, 0.0, 1.4]), np.array([2 * np.cos(yaw), 2 * np.sin(yaw), 0.5]))
-        depths.append(np.round(sim.render(pose, np.random.default_rng(k)).depth * 5000).astype(np.uint16))
-        poses.append(TILT @ pose)
-    tum(folder, frames, np.full((120, 160, 3), 128, np.uint8), depths, poses)
-    fx, fy, cx, cy = K_SMALL
-    np.savetxt(folder / "camera-intrinsics.txt", [[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
+    toy_room_tum(folder, frames, 2 * np.pi, TILT)
 
 
 def _angle(a, b) -> float:

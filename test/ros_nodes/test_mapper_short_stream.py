@@ -15,28 +15,13 @@ from testsupport.ros import domain_id, spin_until, stop_client_and_node
 
 pytestmark = pytest.mark.ros
 
-K_SMALL = (131.25, 131.25, 79.5, 59.5)
 
 
 def _short_tum(folder, frames: int = 8):
     """An 8-frame TUM folder of the toy room (160x120), z up, the camera turning slowly."""
-    from testsupport.frames import tum
+    from testsupport.frames import toy_room_tum
 
-    from recon_core.frame import CameraIntrinsics
-    from scene_recon.synthetic.geometry import look_at_pose
-    from scene_recon.synthetic.sensor import RGBDSensorSimulator
-    from scene_recon.synthetic.toy_scene import make_toy_scene
-
-    sim = RGBDSensorSimulator(make_toy_scene(6, 1).items, CameraIntrinsics(*K_SMALL, 160, 120))
-    depths, poses = [], []
-    for k in range(frames):
-        yaw = 0.6 * np.pi * k / frames
-        pose = look_at_pose(np.array([0.0, 0.0, 1.4]), np.array([2 * np.cos(yaw), 2 * np.sin(yaw), 0.5]))
-        depths.append(np.round(sim.render(pose, np.random.default_rng(k)).depth * 5000).astype(np.uint16))
-        poses.append(pose)
-    tum(folder, frames, np.full((120, 160, 3), 128, np.uint8), depths, poses)
-    fx, fy, cx, cy = K_SMALL
-    np.savetxt(folder / "camera-intrinsics.txt", [[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
+    toy_room_tum(folder, frames, 0.6 * np.pi)
 
 
 def _run(tmp_path, *params: str, ask: bool) -> dict:

@@ -119,3 +119,28 @@ def rgbd_rawbag(n: int = 3, root: str = "map", color_wh: tuple[int, int] = (64, 
         if k_depth is not None:
             bag.add("/camera/depth/camera_info", camera_info(t, "opt", k_depth, wd, hd))
     return bag
+
+
+#: Intrinsics (fx, fy, cx, cy) of the toy-room TUM folders (160x120).
+TOY_K = (131.25, 131.25, 79.5, 59.5)
+
+
+def toy_room_tum(folder: Path, frames: int, sweep: float, transform: np.ndarray | None = None) -> None:
+    """A TUM folder of the toy room (160x120, intrinsics in camera-intrinsics.txt): the camera at 1.4 m
+    turns through `sweep` radians over `frames` frames; poses are given in `transform`'s frame (z up
+    when None)."""
+    from recon_core.frame import CameraIntrinsics
+    from scene_recon.synthetic.geometry import look_at_pose
+    from scene_recon.synthetic.sensor import RGBDSensorSimulator
+    from scene_recon.synthetic.toy_scene import make_toy_scene
+
+    sim = RGBDSensorSimulator(make_toy_scene(6, 1).items, CameraIntrinsics(*TOY_K, 160, 120))
+    depths, poses = [], []
+    for k in range(frames):
+        yaw = sweep * k / frames
+        pose = look_at_pose(np.array([0.0, 0.0, 1.4]), np.array([2 * np.cos(yaw), 2 * np.sin(yaw), 0.5]))
+        depths.append(np.round(sim.render(pose, np.random.default_rng(k)).depth * 5000).astype(np.uint16))
+        poses.append(pose if transform is None else transform @ pose)
+    tum(folder, frames, np.full((120, 160, 3), 128, np.uint8), depths, poses)
+    fx, fy, cx, cy = TOY_K
+    np.savetxt(folder / "camera-intrinsics.txt", [[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
