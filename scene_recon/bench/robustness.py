@@ -360,7 +360,8 @@ def _fmt(v: float | None, pct: bool = False, mm: bool = False) -> str:
 # ---------------------------------------------------------------------------------------------- reporting
 
 _DISPLAY = {"pq": ("PQ", 1.0, ""), "pq_things": ("PQ things", 1.0, ""), "box_mAP": ("box mAP", 100.0, " %"),
-            "ged_ratio": ("GED (% of ground-truth nodes)", 100.0, " %"), "pose_success": ("mapped pose success", 100.0, " %"),
+            "ged_ratio": ("GED (% of ground-truth nodes)", 100.0, " %"),
+            "pose_success": ("mapped pose success", 100.0, " %"),
             "pose_recall": ("pose recall (correct CAD / seen objects)", 100.0, " %"),
             "ae_median_m": ("AE median", 1000.0, " mm"), "stillness": ("stillness", 100.0, " %"),
             "map_ms_per_frame": ("mapping ms/frame", 1.0, ""), "replace_s": ("stage-4 s", 1.0, "")}
