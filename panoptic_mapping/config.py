@@ -147,9 +147,10 @@ class ExtractionConfig(Settings):
 
     #: Birth of a thing entity: its instance must have been chosen in at least this many segmented
     #: frames. One frame is what a network's flicker fakes (a spurious blob, a split-off piece of a
-    #: mask); on the robustness protocol every false thing entity had 1 frame and every true one >= 2
-    #: (docs/STAGE2_MAPPING.md, "Instances that survive noise"). 1 is the paper's rule (every detection
-    #: is born). While no instance has been segmented more often than once, one frame is enough.
+    #: mask); on 6 maps of the robustness protocol's scenes (4 scenes, draws 0-1) every false thing
+    #: entity had 1 frame and every true one >= 2 (docs/STAGE2_MAPPING.md, "Instances that survive
+    #: noise"). 1 is the paper's rule (every detection is born). While no instance has been segmented
+    #: more often than once, one frame is enough.
     min_instance_frames: int = setting(2, min=1, doc="segmented frames a thing instance needs to become an entity")
     #: A thing fragment below `min_instance_frames` whose surface touches (within 1.5 voxels) an entity
     #: of its own class joins that entity (a split-off part of a cabinet); other fragments are dropped
@@ -163,8 +164,9 @@ class ExtractionConfig(Settings):
     include_unknown: bool = True
     #: A thing entity with at least this share of its vertices within 1.5 voxels of a larger entity of
     #: its own class joins it (one object whose instance tracking split: a table's legs, half a chair).
-    #: Measured on the robustness protocol's maps: such splits touch along 10-20 % of the smaller part,
-    #: separate objects of one class along < 2 %. 0 disables (the paper's extraction).
+    #: On 6 maps of the protocol's scenes (kitchen draws 0-1, office, clutter, gen-8686, gen-7373): such
+    #: splits touched along 10-20 % of the smaller part, separate objects of one class along < 2 %.
+    #: 0 disables (the paper's extraction).
     merge_touching_share: float = setting(0.05, min=0.0, max=1.0, doc="share of a thing's vertices touching a "
                                           "larger same-class entity that merges it into that entity (0: never)")
     #: Reconstructed vertices no entity claims join the nearest claimed vertex's entity within this

@@ -184,8 +184,7 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
         matched += 1
     # stand-ins of observed meshes rebuilt from a folder (see scene_from_folder) have no geometry to measure
     measured = [o for o in scene if not (o.cad_id.startswith("observed") and o.model.source == "box")]
-    penetrations = pair_penetrations(ReplacedScene(scene.name, measured, frame_id=scene.frame_id)) \
-        if len(measured) < len(scene.objects) else pair_penetrations(scene)
+    penetrations = pair_penetrations(ReplacedScene(scene.name, measured, frame_id=scene.frame_id))
     worst = max((d for _a, _b, d in penetrations), default=0.0)
     gaps = []
     for obj in scene:

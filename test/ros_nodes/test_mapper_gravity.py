@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from testsupport.ros import domain_id, spin_until
+from testsupport.ros import domain_id, play_recording, spin_until
 
 pytestmark = pytest.mark.ros
 
@@ -69,10 +69,7 @@ def _map_over_dds(tmp_path, save_as: str, *params: str) -> dict:
                                  STATUS)
         save = node.create_client(SaveMap, "save_map")
         assert save.wait_for_service(timeout_sec=60), "mapper node did not come up"
-        player = subprocess.run(
-            [py, "-m", "ros_nodes.rgbd_player", "--ros-args", "-p", f"source:={tmp_path / 'tum'}",
-             "-p", "rate:=1.0", "-p", "wait_for_subscribers:=1"],
-            env=env, capture_output=True, text=True, timeout=120)
+        player = play_recording(py, tmp_path / "tum", env)
         assert player.returncode == 0, player.stdout + player.stderr
         statuses = out["statuses"]
         assert spin_until(node, lambda: bool(statuses) and statuses[-1]["frames_integrated"] >= 14

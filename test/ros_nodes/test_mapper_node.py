@@ -9,7 +9,7 @@ import time
 
 import pytest
 import yaml
-from testsupport.ros import domain_id
+from testsupport.ros import domain_id, play_recording
 
 from scene_recon.synthetic.generate import GenerateConfig, generate_recording
 from scene_recon.synthetic.scene import GroundTruthScene
@@ -54,11 +54,8 @@ def test_mapper_node_maps_a_bag_with_the_segmentation_service(tmp_path):
         save = node.create_client(SaveMap, "save_map")
         seg_ready = node.create_client(SegmentImage, "segment_image")
         assert extract.wait_for_service(timeout_sec=60) and seg_ready.wait_for_service(timeout_sec=60)
-        player = subprocess.run(
-            [py, "-m", "ros_nodes.rgbd_player", "--ros-args", "-p", f"source:={summary['bag']}", "-p", "rate:=1.0",
-             "-p", "wait_for_subscribers:=1", "-p", "wait_for_label_subscribers:=1",
-             "-p", "labels_topic_in:=/ground_truth/panoptic_labels"],
-            env=env, capture_output=True, text=True, timeout=120)
+        player = play_recording(py, summary["bag"], env, "wait_for_label_subscribers:=1",
+                                "labels_topic_in:=/ground_truth/panoptic_labels")
         assert player.returncode == 0, player.stdout + player.stderr
         time.sleep(3.0)  # let the mapper drain its queue
         future = extract.call_async(ExtractEntities.Request(include_meshes=True))

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 import pytest
-from testsupport.ros import domain_id, spin_until, stop_client_and_node
+from testsupport.ros import domain_id, play_recording, spin_until, stop_client_and_node
 
 pytestmark = pytest.mark.ros
 
@@ -54,10 +54,7 @@ def _run(tmp_path, *params: str, ask: bool) -> dict:
                                  STATUS)
         extract = node.create_client(ExtractEntities, "extract_entities")
         assert extract.wait_for_service(timeout_sec=60), "mapper node did not come up"
-        player = subprocess.run(
-            [py, "-m", "ros_nodes.rgbd_player", "--ros-args", "-p", f"source:={tmp_path / 'tum'}",
-             "-p", "rate:=1.0", "-p", "wait_for_subscribers:=1"],
-            env=env, capture_output=True, text=True, timeout=120)
+        player = play_recording(py, tmp_path / "tum", env)
         assert player.returncode == 0, player.stdout + player.stderr
         t_end = time.monotonic()
         if not ask:

@@ -55,7 +55,8 @@ def _unwritable_folder(tmp_path: Path) -> Path:
             (folder / "scene-recon-probe").touch()
         except OSError:
             return folder
-    pytest.skip("no folder here refuses writes")
+    pytest.skip("no folder refuses writes here: running as root (permission bits do not apply) and neither "
+                "/sys nor /proc (sysfs, procfs) exists on this system")
 
 
 def test_map_into_an_unwritable_folder_fails_before_mapping(tiny_bag, tmp_path, capsys):

@@ -93,3 +93,15 @@ def subscribe_diagnostics(node) -> dict[str, list[dict]]:
 
     node.create_subscription(DiagnosticArray, TOPIC, on_array, QOS)
     return got
+
+
+def play_recording(python: str, source, env: dict, *params: str, timeout: float = 120.0):
+    """Play `source` once through the rgbd_player node at rate 1.0 (waiting for a subscriber) and return
+    the finished process; `params`: extra ``name:=value`` parameters."""
+    import subprocess
+
+    args = [python, "-m", "ros_nodes.rgbd_player", "--ros-args", "-p", f"source:={source}", "-p", "rate:=1.0",
+            "-p", "wait_for_subscribers:=1"]
+    for param in params:
+        args += ["-p", param]
+    return subprocess.run(args, env=env, capture_output=True, text=True, timeout=timeout)
