@@ -515,12 +515,15 @@ class PanopticMapper:
         inside = canon < len(entity_of_label)
         clipped = np.clip(canon, 0, len(entity_of_label) - 1)
         ent_v = np.where(inside, entity_of_label[clipped], 0)
+        before = ent_v
         if fragment_of_label is not None and fragment_class is not None and len(fragment_class):
             frag_v = np.where(inside, fragment_of_label[clipped], 0)
             ent_v = self._merge_fragments(v, ent_v, frag_v, fragment_class, {e.id: e.class_id for e in ents})
         share = self.config.extraction.merge_touching_share
         if share > 0:
             ent_v = self._merge_touching(v, ent_v, {e.id: e.class_id for e in ents if e.is_thing}, share)
+        if ent_v is not before:
+            self._revise_merged(ents, ent_v, before, canon)
         voted = ent_v > 0
         ent_v = self._fill_unclaimed(v, ent_v)
         ent_f = ent_v[f]
@@ -544,6 +547,26 @@ class PanopticMapper:
             rank[order] = np.arange(len(order))
             e.set_geometry(v[used[order]], rank[inv].reshape(-1, 3), int(voted[used].sum()))
             e.num_voxels = len(used)
+
+    def _revise_merged(self, ents: list[Entity], ent_v: np.ndarray, before: np.ndarray, canon: np.ndarray) -> None:
+        """An entity that took in surface of a fragment or a split part carries the newest change of that
+        surface in its revision too: a later change of the part alone must reach the consumers that
+        re-process an entity only when its revision moves (stage 4 re-matches by revision)."""
+        moved = (ent_v != before) & (ent_v > 0)
+        if not np.any(moved):
+            return
+        updates = self.counts.last_update
+        labels = np.unique(canon[moved])
+        revision = np.zeros(len(labels), np.int64)
+        for i, label in enumerate(labels.tolist()):  # distinct labels of the moved surface: a handful
+            revision[i] = updates.get(int(label), 0)
+        per_vertex = revision[np.searchsorted(labels, canon[moved])]
+        newest: dict[int, int] = {}
+        for eid, rev in zip(*np.unique(np.stack([ent_v[moved], per_vertex], axis=1), axis=0).T, strict=True):
+            newest[int(eid)] = max(newest.get(int(eid), 0), int(rev))
+        for e in ents:
+            if newest.get(e.id, 0) > e.revision:
+                e.revision = newest[e.id]
 
     def _merge_fragments(self, v: np.ndarray, ent_v: np.ndarray, frag_v: np.ndarray, fragment_class: np.ndarray,
                          class_of_entity: dict[int, int]) -> np.ndarray:

@@ -156,3 +156,21 @@ def test_a_split_off_part_joins_its_larger_same_class_entity():
     assert np.array_equal(rest, ent_v[len(big) + len(part):])  # cabinets (3 % touching) and the sofa stay
     # 0 disables it in the mapper's config; a share above the seam's keeps the part apart
     assert np.array_equal(_mapper()._merge_touching(v, ent_v, {1: CHAIR, 2: CHAIR}, 0.5), ent_v)
+
+
+def test_an_entity_that_took_in_a_part_carries_the_parts_newest_change():
+    """Stage 4 re-matches an entity only when its revision moves: surface merged into it (a fragment, a
+    split part) brings its labels' last change along."""
+    from recon_core.entity import Entity
+
+    mapper = _mapper()
+    mapper.counts.last_update = {1: 4, 2: 12, 3: 30}
+    table = Entity(7, "table", class_id=TABLE, is_thing=True, revision=9)
+    chair = Entity(8, "chair", class_id=CHAIR, is_thing=True, revision=40)
+    canon = np.array([1, 1, 2, 2, 3, 3])  # labels of six vertices
+    before = np.array([7, 7, 0, 0, 8, 8])  # label 2 was a fragment
+    after = np.array([7, 7, 7, 7, 8, 8])  # ... that joined the table
+    mapper._revise_merged([table, chair], after, before, canon)
+    assert table.revision == 12 and chair.revision == 40
+    mapper._revise_merged([table, chair], after, after, canon)  # nothing moved: nothing changes
+    assert table.revision == 12
