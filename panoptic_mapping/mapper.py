@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from panoptic_mapping.config import MapperConfig
-from panoptic_mapping.depth_segmentation import segment_depth
+from panoptic_mapping.depth_segmentation import segment_depth_planes
 from panoptic_mapping.fusion import BACKGROUND, FrameSegments, PanopticMasks, fuse
 from panoptic_mapping.image_ops import downsample_depth, downsample_labels
 from panoptic_mapping.panoptic_counts import PanopticCounts
@@ -223,7 +223,8 @@ class PanopticMapper:
         intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
         area = 1.0 / (ds * ds)
         t = {}
-        geo, points, _normals = segment_depth(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
+        geo, planes, _normals = segment_depth_planes(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
+        points = cv2.merge(list(planes))
         t["depth_segmentation"] = time.perf_counter()
         if masks is not None:
             masks = PanopticMasks(downsample_labels(masks.labels, ds), masks.class_id, masks.is_thing, masks.score)
@@ -232,20 +233,20 @@ class PanopticMapper:
         min_pts = max(1, round(cfg.fusion.min_segment_points * area))
         segs = fuse(geo, masks, points, cfg.fusion, full=self.full, min_points=min_pts)
         t["fusion"] = time.perf_counter()
-        # (N, 3) @ (3, 3) in numpy is slow for this shape; cv2.transform is a tight C loop
-        world = cv2.transform(points.reshape(-1, 1, 3), pose[:3, :].astype(np.float32)).reshape(-1, 3)
-        segmented = bool(masks.labels.any())
+        # only every `stride`-th pixel (both directions) is associated and voted: transform just those
+        # ((N, 3) @ (3, 3) in numpy is slow for this shape; cv2.transform is a tight C loop)
         stride = max(1, cfg.association.pixel_stride)
-        grid = np.zeros(depth.shape, bool)
-        grid[::stride, ::stride] = True
-        sample = grid.ravel()
-        label_of_seg, new_labels, map_labels = self._associate(segs, world, sample, count_merges=segmented)
+        sampled = np.ascontiguousarray(points[::stride, ::stride]).reshape(-1, 1, 3)
+        world = cv2.transform(sampled, pose[:3, :].astype(np.float32)).reshape(-1, 3)
+        segmented = bool(masks.labels.any())
+        seg_flat = np.ascontiguousarray(segs.image[::stride, ::stride]).ravel()
+        label_of_seg, new_labels, map_labels = self._associate(segs, world, seg_flat, seg_flat.size / segs.image.size,
+                                                               count_merges=segmented)
         t["association"] = time.perf_counter()
         if segmented:
             self._vote(segs, label_of_seg)
-        seg_flat = segs.image.ravel()
         pix_labels = label_of_seg[seg_flat]
-        has = (pix_labels > 0) & sample
+        has = pix_labels > 0
         if not segmented:
             # frames without fresh masks fill unknown voxels but never fight labels the map holds
             # (a purely geometric segment may be under-segmented: floor + wall in one piece)
@@ -254,6 +255,7 @@ class PanopticMapper:
         self.tsdf.integrate_labels(world[has], pix_labels[has], lut)
         for label in np.unique(pix_labels[has]).tolist():
             self.counts.last_update[int(label)] = self.frames_integrated
+        t["label_integration"] = time.perf_counter()
         self.tsdf.integrate_depth(depth, intr.matrix, pose, in_range=True)
         t["integration"] = time.perf_counter()
         self._integrated(frame)
@@ -268,17 +270,18 @@ class PanopticMapper:
         return FrameStats(bool(masks.labels.any()), segs.count, new_labels, segs.num_split, segs.num_clustered_out,
                           timings)
 
-    def _associate(self, segs: FrameSegments, world: np.ndarray, sample: np.ndarray,
+    def _associate(self, segs: FrameSegments, world: np.ndarray, flat: np.ndarray, sampled_share: float,
                    count_merges: bool) -> tuple[np.ndarray, int, np.ndarray]:
         """Global segment label of each frame segment (greedy by 3D overlap, Sec. 3.2).
 
-        Returns (label per segment id, number of new labels, canonical map label per pixel).
+        `flat`: the segment id of each sampled pixel, `world` its map-frame point, `sampled_share` the share of
+        the image's pixels sampled. Returns (label per segment id, number of new labels, canonical map
+        label per sampled pixel).
         """
         ac = self.config.association
         n = segs.count + 1
         label_of = np.zeros(n, np.int64)
-        flat = segs.image.ravel()
-        sel = (flat > 0) & sample
+        sel = flat > 0
         pixel_map_labels = np.zeros(flat.size, np.int64)
         if not np.any(sel):
             return label_of, 0, pixel_map_labels
@@ -302,7 +305,7 @@ class PanopticMapper:
                     for j in range(i + 1, len(labs)):
                         key = (labs[i], labs[j])
                         self.merge_votes[key] = self.merge_votes.get(key, 0) + 1
-        min_points = max(1, round(ac.min_overlap_points * float(sample.mean())))  # counts are of sampled pixels
+        min_points = max(1, round(ac.min_overlap_points * sampled_share))  # counts are of sampled pixels
         ok = (counts >= min_points) & (share >= ac.min_overlap_share)
         order = np.argsort(-counts[ok], kind="stable")
         taken: set[int] = set()
