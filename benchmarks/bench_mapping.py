@@ -161,7 +161,10 @@ def cost_model(bag: Path, frames: int, noise: str = "default", seed: int = 0) ->
                    "ns_per_pixel": round(float(t.mean()) * 1e6 / (h * w), 2),
                    "x_open3d_frame": round(float(t.sum()) / n / o3d_ms, 3)}
     full_ms, geo_ms = 1000 * run.mapper_s / n, 1000 * geo.mapper_s / geo.frames
+    import panoptic_mapping
+
     return {
+        "code": str(Path(panoptic_mapping.__file__).resolve().parent.parent),
         "bag": str(bag), "frames": n, "resolution": [w, h], "keyframes": run.keyframes,
         "segmentation_calls": run.segmentation_calls, "segmentation_ms_per_call":
             round(1000 * run.segmentation_s / max(run.segmentation_calls, 1), 2),
