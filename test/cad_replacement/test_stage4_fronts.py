@@ -22,7 +22,7 @@ from testsupport.observations import observe_model, yaw_pose
 from cad_replacement.cad.procedural import build_model
 from cad_replacement.matching import handle_yaw, orientation_set
 from cad_replacement.replace_config import CadReplacementConfig
-from cad_replacement.replace_object import replace_object
+from cad_replacement.replace_object import replace_object, seen_bottom
 from cad_replacement.seeded_library import SeededLibrary
 from recon_core.classes import load_class_table, parse_class_table
 from recon_core.errors import ConfigError
@@ -179,3 +179,27 @@ def test_the_evaluation_scores_a_cups_handle_and_a_bottles_class_symmetry() -> N
     assert rotational_symmetry(build_model("cup", 0)) == ROUND
     assert class_symmetry("bottle") == 4 and class_symmetry("cup") is None
     assert stronger_symmetry(1, 4) == 4 and stronger_symmetry(ROUND, 4) == ROUND and stronger_symmetry(2, None) == 2
+
+
+# ------------------------------------------------------------------------- a support plane that came low
+
+
+def test_a_seen_bottom_face_above_the_support_plane_is_where_the_model_stands(
+        tmp_path_factory: pytest.TempPathFactory) -> None:
+    """bench-small's book in a drawer: the graph's support plane 9 mm under it stretched its 2 cm thickness
+    1.46x. A bottom face that was seen is where the model stands; a mapped object in contact shows none."""
+    library = _library(tmp_path_factory, "cup", [9], 0)
+    model = build_model("cup", 9)
+    pose = yaw_pose(0.4, (1.0, -0.5, 0.75))
+    obs, _ = observe_model(model, pose, {}, np.random.default_rng(3), half=False)
+    sizes = {}
+    for gap in (0.0, 0.009):
+        rep = replace_object(dataclasses.replace(obs, support_z=0.75 - gap), library, CadReplacementConfig(workers=1))
+        assert rep.chosen is not None
+        sizes[gap] = rep.chosen.scale[2] * rep.model.size[2]
+    assert abs(sizes[0.009] - sizes[0.0]) < 0.003, sizes
+    assert seen_bottom(dataclasses.replace(obs, support_z=0.741)) == pytest.approx(0.75, abs=0.002)
+    # the same points with their bottom face cut off (in contact with the support): the plane is kept
+    low = obs.points[:, 2] < 0.75 + 0.008
+    hidden = dataclasses.replace(obs, points=obs.points[~low], normals=obs.normals[~low], support_z=0.741)
+    assert seen_bottom(hidden) == pytest.approx(0.741)
