@@ -19,6 +19,7 @@ arithmetic (and its float32 rounding) is the same, operation by operation, as th
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import cv2
@@ -140,18 +141,12 @@ def _normal_band(points: Planes, smooth: Planes, valid: np.ndarray, step: int, r
 
 def _normal_planes(points: Planes, smooth: Planes, valid: np.ndarray, step: int) -> tuple[Planes, np.ndarray]:
     """Unit normals facing the camera (planar; 0 where unknown) from central differences of the
-    smoothed points, and the mask of pixels that have one. With `THREADS` > 1 the lower half of the
-    rows runs on a second thread (the same arithmetic per pixel: the same result)."""
+    smoothed points, and the mask of pixels that have one; by row bands (`_run_bands`: the same
+    arithmetic per pixel, the same result)."""
     h, w = valid.shape
     n_out = (np.empty((h, w), np.float32), np.empty((h, w), np.float32), np.empty((h, w), np.float32))
     ok = np.empty((h, w), bool)
-    if THREADS < 2 or h < 64:
-        _normal_band(points, smooth, valid, step, 0, h, n_out, ok)
-    else:
-        mid = h // 2
-        other = _pool().submit(_normal_band, points, smooth, valid, step, mid, h, n_out, ok)
-        _normal_band(points, smooth, valid, step, 0, mid, n_out, ok)
-        other.result()
+    _run_bands(lambda r0, r1: _normal_band(points, smooth, valid, step, r0, r1, n_out, ok), h)
     return n_out, ok
 
 
@@ -163,13 +158,24 @@ def estimate_normals(points: np.ndarray, valid: np.ndarray, step: int = 2, smoot
     return cv2.merge(list(n))
 
 
-def _edge_cuts(points: Planes, normals: Planes, valid: np.ndarray, margin: np.ndarray, neg_margin: np.ndarray,
-               conv: np.float32, combos: list[tuple[int, int]], edge: np.ndarray) -> np.ndarray:
-    """OR into `edge` the cuts against the neighbours at the (offset, axis) `combos`, both directions."""
+def _edge_band(points: Planes, normals: Planes, valid: np.ndarray, margin: np.ndarray, neg_margin: np.ndarray,
+               conv: np.float32, combos: list[tuple[int, int]], edge: np.ndarray, r0: int, r1: int) -> None:
+    """OR into rows [r0, r1) of `edge` the cuts against the neighbours at the (offset, axis) `combos`,
+    both directions (writes no other row: bands can run on different threads)."""
     h, w = valid.shape
     for off, axis in combos:  # the neighbour below / to the right (+off) and above / to the left (-off)
-        lo = (slice(0, h - off), slice(None)) if axis == 0 else (slice(None), slice(0, w - off))
-        hi = (slice(off, h), slice(None)) if axis == 0 else (slice(None), slice(off, w))
+        if axis == 1:
+            lo, hi = (slice(r0, r1), slice(0, w - off)), (slice(r0, r1), slice(off, w))
+            plus, minus = (slice(None), lo, hi), (slice(None), hi, lo)  # (local rows, pixels, neighbours)
+        else:  # differences of rows [a, b): the band's pixels and, `off` rows up, their upper neighbours
+            a, b = max(r0 - off, 0), min(r1, h - off)
+            if b <= a:
+                continue
+            lo, hi = (slice(a, b), slice(None)), (slice(a + off, b + off), slice(None))
+            p0, q1 = max(a, r0) - a, min(b, r1 - off) - a
+            plus = (slice(p0, b - a), (slice(a + p0, b), slice(None)), (slice(a + p0 + off, b + off), slice(None)))
+            minus = (slice(0, max(q1, 0)), (slice(a + off, a + off + max(q1, 0)), slice(None)),
+                     (slice(a, a + max(q1, 0)), slice(None)))
         diff = (np.subtract(points[0][hi], points[0][lo]), np.subtract(points[1][hi], points[1][lo]),
                 np.subtract(points[2][hi], points[2][lo]))  # p(x + off) - p(x)
         tmp = np.empty(diff[0].shape, np.float32)
@@ -177,25 +183,55 @@ def _edge_cuts(points: Planes, normals: Planes, valid: np.ndarray, margin: np.nd
         nhi = (normals[0][hi], normals[1][hi], normals[2][hi])
         # normals disagree: n(x) . n(x + off) < min_convexity (the same for both directions)
         concave_pair = _dot3(nlo, nhi, tmp=tmp) < conv
-        # + direction: pixel x, neighbour x + off: d = (p(x+off) - p(x)) . n(x)
-        d = _dot3(diff, nlo, tmp=tmp)
-        cut = (d > margin[lo]) | (d < neg_margin[lo]) | ((d > 0) & concave_pair)
-        cut &= valid[hi]
-        edge[lo] |= cut
-        # - direction: pixel x + off, neighbour x: d = (p(x) - p(x+off)) . n(x+off) = -e
-        e = _dot3(diff, nhi, out=d, tmp=tmp)
-        cut = (e < neg_margin[hi]) | (e > margin[hi]) | ((e < 0) & concave_pair)
-        cut &= valid[lo]
-        edge[hi] |= cut
-    return edge
+        for sign, (rows, pix, nbr) in ((1, plus), (-1, minus)):
+            if rows.stop is not None and rows.stop <= (rows.start or 0):
+                continue
+            dl = (diff[0][rows], diff[1][rows], diff[2][rows])
+            # + direction: pixel x, neighbour x + off: d = (p(x+off) - p(x)) . n(x)
+            # - direction: pixel x + off, neighbour x: d = (p(x) - p(x+off)) . n(x+off) = -e, e = diff . n(x+off)
+            nl = (nlo[0][rows], nlo[1][rows], nlo[2][rows]) if sign > 0 else (nhi[0][rows], nhi[1][rows], nhi[2][rows])
+            d = _dot3(dl, nl, tmp=tmp[rows])
+            if sign > 0:
+                cut = (d > margin[pix]) | (d < neg_margin[pix]) | ((d > 0) & concave_pair[rows])
+            else:
+                cut = (d < neg_margin[pix]) | (d > margin[pix]) | ((d < 0) & concave_pair[rows])
+            cut &= valid[nbr]
+            edge[pix] |= cut
+
+
+def _bands(h: int) -> list[tuple[int, int]]:
+    """Row bands of about `BAND_ROWS` rows: each step's arrays of one band stay in the core's cache
+    (a chain of numpy passes over 64-row bands took a third of the CPU time of whole-image passes)."""
+    n = max(1, round(h / BAND_ROWS))
+    edges = [round(i * h / n) for i in range(n + 1)]
+    return [(edges[i], edges[i + 1]) for i in range(n) if edges[i + 1] > edges[i]]
+
+
+def _run_bands(fn: Callable[[int, int], None], h: int) -> None:
+    """fn(r0, r1) over the row bands of an image of `h` rows; with `THREADS` > 1 the lower half of the
+    bands on a second thread (numpy releases the interpreter lock in its loops). Bands write disjoint rows."""
+    bands = _bands(h)
+    if THREADS < 2 or len(bands) < 2:
+        for r0, r1 in bands:
+            fn(r0, r1)
+        return
+    half = len(bands) // 2
+
+    def lower() -> None:
+        for r0, r1 in bands[half:]:
+            fn(r0, r1)
+
+    other = _pool().submit(lower)
+    try:
+        for r0, r1 in bands[:half]:
+            fn(r0, r1)
+    finally:
+        other.result()
 
 
 def _edge_planes(points: Planes, normals: Planes, valid: np.ndarray, has_normal: np.ndarray,
                  cfg: DepthSegmentationConfig, scale: float = 1.0) -> np.ndarray:
-    """Boolean (H, W) edge map from planar smoothed points and normals (see `edge_map`).
-
-    With `THREADS` > 1 half of the (offset, axis) neighbour sets run on a second thread (numpy releases
-    the interpreter lock in its loops), each into its own mask; the union is the same either way."""
+    """Boolean (H, W) edge map from planar smoothed points and normals (see `edge_map`), by row bands."""
     edge = ~(valid & has_normal)
     z = points[2]
     margin = np.maximum(np.float32(cfg.max_discontinuity_ratio) * z, np.float32(cfg.min_discontinuity_m))
@@ -206,17 +242,14 @@ def _edge_planes(points: Planes, normals: Planes, valid: np.ndarray, has_normal:
     for off in cfg.neighbour_offsets:
         off = max(1, round(off * scale))
         combos += [(off, axis) for axis in (0, 1) if off < (h if axis == 0 else w)]
-    if THREADS < 2 or len(combos) < 2:
-        return _edge_cuts(points, normals, valid, margin, neg_margin, conv, combos, edge)
-    other = _pool().submit(_edge_cuts, points, normals, valid, margin, neg_margin, conv, combos[1::2],
-                           np.zeros_like(edge))
-    _edge_cuts(points, normals, valid, margin, neg_margin, conv, combos[::2], edge)
-    edge |= other.result()
+    _run_bands(lambda r0, r1: _edge_band(points, normals, valid, margin, neg_margin, conv, combos, edge, r0, r1), h)
     return edge
 
 
-#: Threads of the edge tests (1: all on the calling thread). Two use both cores of a 2-core computer
-#: while the rest of the mapper waits on the segmentation; results are the same for any number.
+#: Rows per band of the normal and edge passes (see `_bands`).
+BAND_ROWS = 64
+#: Threads of the normal and edge passes (1: all on the calling thread). Two use both cores of a 2-core
+#: computer while the rest of the mapper waits on the segmentation; results are the same for any number.
 THREADS = min(2, os.cpu_count() or 1)
 _POOL: ThreadPoolExecutor | None = None
 

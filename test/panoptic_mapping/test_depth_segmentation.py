@@ -119,9 +119,12 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
     DepthSegmentationConfig(min_convexity=0.9, max_discontinuity_ratio=0.03, min_segment_pixels=20),
 ])
 @pytest.mark.parametrize("area", [1.0, 0.25])
-@pytest.mark.parametrize("threads", [1, 2])
-def test_segments_points_and_normals_are_bit_identical_to_the_reference(depths, cfg, area, threads, monkeypatch):
-    monkeypatch.setattr(ds, "THREADS", threads)  # 2: normals by row halves and edge tests on two threads
+@pytest.mark.parametrize(("threads", "band_rows"), [(1, 64), (2, 64), (2, 5)])
+def test_segments_points_and_normals_are_bit_identical_to_the_reference(depths, cfg, area, threads, band_rows,
+                                                                        monkeypatch):
+    # row bands of the normal and edge passes, half of them on a second thread; 5 rows: offsets cross bands
+    monkeypatch.setattr(ds, "THREADS", threads)
+    monkeypatch.setattr(ds, "BAND_ROWS", band_rows)
     segmented = 0
     for d in depths:
         ref = _ref_segment(d, INTR, cfg, area)
