@@ -161,6 +161,18 @@ def node_update(graph_dir: Path, repeats: int) -> dict[str, Any]:
         replacer.close()
 
 
+def node_update_in(tree: Path | None, graph_dir: Path, repeats: int, work: Path) -> dict[str, Any]:
+    """``node_update`` with the code of ``tree`` (this checkout when None), in a new process."""
+    out = work / f"node_{'this' if tree is None else 'baseline'}.json"
+    out.unlink(missing_ok=True)
+    command = [sys.executable, str(Path(__file__).resolve()), "--node-only", str(graph_dir), "--repeats",
+               str(repeats), "--node-out", str(out), "--tree", str(tree or ROOT)]
+    proc = subprocess.run(command, env=_env(tree, None), capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"node update ({tree or 'this'}) failed:\n{proc.stderr[-3000:]}")
+    return json.loads(out.read_text())
+
+
 def _median(rows: list[dict[str, Any]], key: str = "wall_s") -> float | None:
     values = [r[key] for r in rows if r.get(key) is not None]
     return float(statistics.median(values)) if values else None
@@ -203,6 +215,8 @@ def _plot(result: dict[str, Any], path: Path) -> None:
     title = f"scene-recon replace, {result['objects']} objects, {result['machine_load']}"
     if node:
         title += f"; in-node warm update of one entity: {node['update_s_median']:.2f} s"
+        if node.get("baseline"):
+            title += f" (baseline {node['baseline']['update_s_median']:.2f} s)"
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -218,7 +232,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, default=ROOT / "out" / "bench_replace_cli",
                         help="folder for the input, caches and outputs (default out/bench_replace_cli)")
     parser.add_argument("--no-node", action="store_true", help="skip the in-node one-entity update")
+    parser.add_argument("--node-only", type=Path, metavar="GRAPH", help=argparse.SUPPRESS)
+    parser.add_argument("--node-out", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--tree", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.node_only is not None:  # one tree's in-node figure (its code first on the path)
+        sys.path.insert(0, str(args.tree or ROOT))
+        args.node_out.write_text(json.dumps(node_update(args.node_only, args.repeats)))
+        return 0
 
     work = args.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
@@ -251,7 +272,11 @@ def main(argv: list[str] | None = None) -> int:
             f"{mode}{kind}": summary["this"][f"{mode}{kind}_median_s"] / summary["baseline"][f"{mode}{kind}_median_s"]
             for mode in ("cold", "warm") for kind in ("", "_cpu")
             if summary["this"][f"{mode}{kind}_median_s"] and summary["baseline"][f"{mode}{kind}_median_s"]}
-    node = None if args.no_node else node_update(graph, args.repeats)
+    node = None
+    if not args.no_node:
+        node = node_update_in(None, graph, args.repeats, work)
+        if "baseline" in trees:
+            node["baseline"] = node_update_in(trees["baseline"], graph, args.repeats, work)
     result: dict[str, Any] = {
         "input": str(graph), "seed": args.seed, "objects": args.objects, "repeats": args.repeats,
         "baseline": str(trees.get("baseline")) if "baseline" in trees else None,
@@ -272,8 +297,9 @@ def main(argv: list[str] | None = None) -> int:
     if "ratio_this_over_baseline" in summary:
         print("this / baseline: " + ", ".join(f"{k} {v:.2f}" for k, v in summary["ratio_this_over_baseline"].items()))
     if node is not None:
+        base = node.get("baseline")
         print(f"in-node warm update of one entity ({node['entity']}): median {node['update_s_median']:.2f} s "
-              f"({node['rematched']} re-matched)")
+              f"({node['rematched']} re-matched)" + (f"; baseline {base['update_s_median']:.2f} s" if base else ""))
     print(f"{result['machine_load']}; wrote {path} and {RESULTS_DIR / 'replace_cli.png'}")
     return 0
 

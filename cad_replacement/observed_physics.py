@@ -55,27 +55,49 @@ def _world_pieces(obj: PlacedObject) -> list[trimesh.Trimesh]:
     return out
 
 
-#: Link-frame collision pieces of recently seen models (``settle_observed`` runs twice per scene, and
-#: every replacement of a running node's graph): model id -> (the model, [(link, piece)]).
-_LOCAL_PIECES: OrderedDict[int, tuple[CadModel, list[tuple[str, trimesh.Trimesh, bool]]]] = OrderedDict()
+#: Link-frame corners bounding each collision piece of recently seen models (``settle_observed`` runs
+#: twice per scene, and at every replacement of a running node's graph): model id -> (the model, pieces).
+_LOCAL_PIECES: OrderedDict[int, tuple[CadModel, list[tuple[Link, CollisionShape | None, NDArray[np.float64]]]]] = \
+    OrderedDict()
 _LOCAL_PIECES_SIZE = 256
+#: Margin (m) added to piece bounds computed from link-frame corners: they must contain the exact
+#: bounds (a pair whose bounds do not overlap has no probe inside the other piece), rounding included.
+_BOUNDS_PAD = 1e-9
 
 
-def _local_pieces(model: CadModel) -> list[tuple[str, trimesh.Trimesh, bool]]:
-    """(link name, closed convex piece in the link frame, whether it is a shape's mesh) of a model, as
-    ``_world_pieces`` builds them before moving them into the map."""
+def _corners(shape: CollisionShape) -> NDArray[np.float64]:
+    """Points whose hull contains ``shape_mesh(shape)``: the corners of the primitive's box (a cylinder's
+    and a sphere's circumscribed one), or a mesh piece's vertices, in the link frame."""
+    if shape.kind in ("box", "cylinder", "sphere"):
+        if shape.kind == "box":
+            half = 0.5 * np.asarray(shape.size, np.float64)
+        elif shape.kind == "cylinder":
+            half = np.array([shape.radius, shape.radius, 0.5 * shape.length], np.float64)
+        else:
+            half = np.full(3, shape.radius, np.float64)
+        local = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], np.float64) * half
+    else:
+        assert shape.mesh is not None
+        local = np.asarray(shape.mesh.vertices, np.float64)
+    origin = np.asarray(shape.origin, np.float64)
+    return local @ origin[:3, :3].T + origin[:3, 3]
+
+
+def _local_pieces(model: CadModel) -> list[tuple[Link, CollisionShape | None, NDArray[np.float64]]]:
+    """(link, its collision shape or None for the hull of its visual mesh, link-frame bounding points) of
+    every piece ``_world_pieces`` builds, in its order."""
     hit = _LOCAL_PIECES.get(id(model))
     if hit is not None and hit[0] is model:
         _LOCAL_PIECES.move_to_end(id(model))
         return hit[1]
-    out: list[tuple[str, trimesh.Trimesh, bool]] = []
+    out: list[tuple[Link, CollisionShape | None, NDArray[np.float64]]] = []
     for link in model.links:
         shapes = link.collisions
         if shapes is None:
-            if len(link.mesh.faces):
-                out.append((link.name, link.mesh.convex_hull, False))
+            if len(link.mesh.faces):  # the hull's vertices are some of the mesh's
+                out.append((link, None, np.asarray(link.mesh.vertices, np.float64)))
             continue
-        out.extend((link.name, shape_mesh(shape), True) for shape in shapes)
+        out.extend((link, shape, _corners(shape)) for shape in shapes)
     _LOCAL_PIECES[id(model)] = (model, out)
     while len(_LOCAL_PIECES) > _LOCAL_PIECES_SIZE:
         _LOCAL_PIECES.popitem(last=False)
@@ -83,32 +105,38 @@ def _local_pieces(model: CadModel) -> list[tuple[str, trimesh.Trimesh, bool]]:
 
 
 class _PlacedPieces:
-    """The collision pieces of one placed object in the map: their bounds at once (from the link-frame
-    vertices), each closed mesh only when a test needs it (most pieces are far from every observed
-    object; building every piece of every object took 1-2 s per call on a 20-object scene)."""
+    """The collision pieces of one placed object in the map: bounds that contain each piece at once
+    (from link-frame corners), each closed mesh only when a test needs it (most pieces are far from
+    every observed object; building every piece of every object took 1-2 s per call on a 20-object
+    scene). Larger bounds only let more pairs reach the exact test, so what is dropped is unchanged."""
 
     def __init__(self, obj: PlacedObject) -> None:
         self._local = _local_pieces(obj.model)
         self._poses = obj.link_poses()
         self._built: dict[int, trimesh.Trimesh] = {}
         corners = []
-        for link, local, _shape in self._local:
-            pose = np.asarray(self._poses[link], dtype=np.float64, order="C")
-            v = np.asarray(local.vertices, np.float64)
-            if not trimesh.util.allclose(pose, np.eye(4), 1e-8):  # as ``apply_transform`` (it skips identities)
-                v = trimesh.transformations.transform_points(v, matrix=pose)
-            corners.append(np.array([v.min(axis=0), v.max(axis=0)]) if len(v) else _bounds(trimesh.Trimesh()))
+        for link, _shape, points in self._local:
+            if len(points) == 0:
+                corners.append(_bounds(trimesh.Trimesh()))
+                continue
+            pose = np.asarray(self._poses[link.name], np.float64)
+            v = points @ pose[:3, :3].T + pose[:3, 3]
+            corners.append(np.array([v.min(axis=0) - _BOUNDS_PAD, v.max(axis=0) + _BOUNDS_PAD]))
         self.bounds = np.array(corners, np.float64).reshape(-1, 2, 3)
 
     def __len__(self) -> int:
         return len(self._local)
 
     def piece(self, k: int) -> trimesh.Trimesh:
-        """The ``k``-th piece in the map, as ``_world_pieces`` builds it."""
+        """The ``k``-th piece in the map, built as ``_world_pieces`` builds it."""
         hit = self._built.get(k)
         if hit is None:
-            link, local, shape = self._local[k]
-            hit = local.copy(include_cache=shape).apply_transform(self._poses[link])
+            link, shape, _points = self._local[k]
+            if shape is None:
+                hit = link.mesh.convex_hull.copy().apply_transform(self._poses[link.name])
+            else:
+                hit = shape_mesh(shape)
+                hit.apply_transform(self._poses[link.name])
             self._built[k] = hit
         return hit
 

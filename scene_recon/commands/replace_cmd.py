@@ -39,6 +39,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="procedural CAD models per class (articulated classes and shelves: 2x; default: 10)")
     p.add_argument("--cad-dir", metavar="DIR",
                    help="folder of imported CAD assets (<class>/<model>/ with a URDF) added to the library")
+    p.add_argument("--no-picture", action="store_true",
+                   help="do not draw before_after.png (the observed node meshes beside the replaced scene; it is "
+                   "drawn while the export writes, but costs about a second of CPU)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_preset_option(p)
     p.set_defaults(func=run)
@@ -101,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     # the picture is drawn (numpy and Open3D ray casting, mostly outside the interpreter lock) while the
     # URDF, MJCF and meshes are written: it needs scene.glb only, which the export writes first
     picture_job = _PictureJob(graph, entities, out)
-    exported = export_scene(result.scene, out, on_glb=picture_job.start)
+    exported = export_scene(result.scene, out, on_glb=None if args.no_picture else picture_job.start)
     urdf = exported.urdf
     physics = check.last_report
     summary = {"scene": result.scene.name, "method": args.method, "objects": len(result.scene),
@@ -146,9 +149,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _input_fingerprint(graph_file: Path, nodes_dir: Path, config: Any, args: argparse.Namespace) -> str:
-    """Names this input (graph and node files, settings, library options): a run that finds its marker
+    """Names this input (graph and node files, settings, library options, code): a run that finds its marker
     expects the result store to answer and starts no fork server up front (a guess, never a result)."""
-    h = hashlib.sha256(repr((config, args.method, args.seeds_per_class, args.cad_dir)).encode())
+    from cad_replacement.result_store import code_digest
+
+    h = hashlib.sha256(repr((code_digest(), config, args.method, args.seeds_per_class, args.cad_dir)).encode())
     for path in (graph_file, nodes_dir / "entities.json"):
         h.update(path.read_bytes())
     for path in sorted(nodes_dir.rglob("*")):

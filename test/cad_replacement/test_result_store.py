@@ -137,6 +137,7 @@ def test_a_model_built_for_its_features_is_not_built_again(tmp_path, monkeypatch
 
 
 def test_observed_pieces_built_on_demand_equal_the_pieces_built_up_front(room):
+    """And ``settle_observed`` drops the same pieces with them as with every piece built up front."""
     graph, nodes = room
     scene = CadReplacer(CadLibrary(seeds_per_class=2), CadReplacementConfig(workers=1)).replace(graph, nodes).scene
     moved = scene.objects[-1]
@@ -147,7 +148,9 @@ def test_observed_pieces_built_on_demand_equal_the_pieces_built_up_front(room):
         lazy = observed_physics._PlacedPieces(obj)
         assert len(lazy) == len(up_front)
         for k, piece in enumerate(up_front):
-            np.testing.assert_array_equal(lazy.bounds[k], piece.bounds)
+            # bounds that contain the piece (a pair they keep apart cannot have a probe inside the other), tight
+            assert np.all(lazy.bounds[k][0] <= piece.bounds[0]) and np.all(lazy.bounds[k][1] >= piece.bounds[1])
+            assert np.allclose(lazy.bounds[k], piece.bounds, atol=0.1 * max(piece.extents)), obj.name
             np.testing.assert_array_equal(lazy.piece(k).vertices, piece.vertices)
             np.testing.assert_array_equal(lazy.piece(k).face_normals, piece.face_normals)
 
