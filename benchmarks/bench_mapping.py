@@ -10,13 +10,24 @@ For every suite scene, the same frames go through:
 and, on the same frames, Open3D's depth-only VoxelBlockGrid integration (the speed baseline).
 Segmentation time is excluded from the mapper's frames/s (it is reported separately).
 
+Cost model (issue 26, `--cost-model`): in one process, on the same frames, the full mapper (oracle,
+default preset, the mapper's own loop as `map` times it), the geometry-only mapper (`--segmenter none`)
+and Open3D's depth-only integration; per mapper step: the frames it runs on, ms per call, ms per input
+frame, ns per processed pixel, and its cost against Open3D's integration of a frame. `--compare-root DIR`
+runs the same model on another checkout (e.g. a `git worktree` of an older commit) in alternating
+subprocesses, `--rounds` times, and reports the best round of each and their ratios.
+
     .venv/bin/python benchmarks/bench_mapping.py [--scenes bench-small bench-kitchen] [--frames N]
+    .venv/bin/python benchmarks/bench_mapping.py --cost-model [--bag GENERATED_BAG] [--frames 120]
+    .venv/bin/python benchmarks/bench_mapping.py --cost-model --compare-root /work/wt_base --rounds 3
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -99,14 +110,179 @@ def run_one(bag: Path, gt: Path, spec: dict, frames: int, out: Path) -> dict:
     }
 
 
+# ------------------------------------------------------------------------------------------ cost model
+#: Mapper steps in the order a label frame runs them (the mapper's `FrameStats.timings_ms` keys).
+STEPS = ("depth_segmentation", "fusion", "association", "label_integration", "integration", "regularization")
+
+
+def cost_model(bag: Path, frames: int, noise: str = "default", seed: int = 0) -> dict:
+    """Per-step cost of the full mapper against the geometry-only mapper and Open3D, one process, same frames.
+
+    Full mapping: `map_recording` with the oracle at `noise` and the default preset (config/mapper.yaml);
+    its `mapper_s` is the mapper's own loop (segmentation, reading excluded), as `scene-recon map` reports.
+    Per step: the frames it ran on and its total time, from the mapper's per-frame timings.
+    """
+    from panoptic_mapping.config import MapperConfig
+    from panoptic_mapping.dataio import DataInputConfig
+    from panoptic_mapping.mapper import PanopticMapper
+    from panoptic_mapping.pipeline import class_metas, map_recording
+    from panoptic_mapping.segmentation.config import SegmentationConfig
+    from panoptic_mapping.segmentation.factory import make_segmenter
+    from recon_core.config import CONFIG_DIR, load_config
+
+    cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml")
+    steps: dict[str, list[float]] = {}
+
+    class Recorder(PanopticMapper):
+        """Records each frame's step timings (older checkouts have no per-step frame counts)."""
+
+        def integrate(self, frame, masks):  # type: ignore[no-untyped-def]
+            stats = super().integrate(frame, masks)
+            for k, v in stats.timings_ms.items():
+                steps.setdefault(k, []).append(v)
+            return stats
+
+    seg_cfg = SegmentationConfig(backend="oracle")
+    seg_cfg.oracle.ground_truth, seg_cfg.oracle.level, seg_cfg.oracle.seed = str(_gt_of(bag)), noise, seed
+    data = DataInputConfig(max_frames=frames)
+    data.topics.labels = "/ground_truth/panoptic_labels"
+    _mapper, run = map_recording(bag, make_segmenter(seg_cfg), cfg, data, progress=False,
+                                 mapper=Recorder(cfg, class_metas()))
+    _geo_mapper, geo = map_recording(bag, None, cfg, DataInputConfig(max_frames=frames), progress=False)
+    o3d_s = open3d_integration_s(bag, frames, cfg.downsample, cfg.tsdf.voxel_size_m)
+    n = run.frames
+    h, w = mapper_resolution(bag, cfg.downsample)
+    o3d_ms = 1000 * o3d_s / n
+    rows = {}
+    for k in [k for k in STEPS if k in steps] + [k for k in steps if k not in STEPS]:
+        t = np.asarray(steps[k])
+        rows[k] = {"frames": int(t.size), "ms_per_call": round(float(t.mean()), 3),
+                   "ms_per_frame": round(float(t.sum()) / n, 3),
+                   "ns_per_pixel": round(float(t.mean()) * 1e6 / (h * w), 2),
+                   "x_open3d_frame": round(float(t.sum()) / n / o3d_ms, 3)}
+    full_ms, geo_ms = 1000 * run.mapper_s / n, 1000 * geo.mapper_s / geo.frames
+    import panoptic_mapping
+
+    return {
+        "code": str(Path(panoptic_mapping.__file__).resolve().parent.parent),
+        "bag": str(bag), "frames": n, "resolution": [w, h], "keyframes": run.keyframes,
+        "segmentation_calls": run.segmentation_calls, "segmentation_ms_per_call":
+            round(1000 * run.segmentation_s / max(run.segmentation_calls, 1), 2),
+        "full_ms_per_frame": round(full_ms, 2), "full_fps": round(1000 / full_ms, 2),
+        "geometry_only_ms_per_frame": round(geo_ms, 2), "geometry_only_fps": round(1000 / geo_ms, 2),
+        "open3d_ms_per_frame": round(o3d_ms, 2),
+        "ratio_full_vs_geometry_only": round(full_ms / geo_ms, 2), "ratio_full_vs_open3d": round(full_ms / o3d_ms, 2),
+        "steps": rows,
+    }
+
+
+def _gt_of(bag: Path) -> Path:
+    from scene_recon.synthetic.generate import ground_truth_path
+
+    return ground_truth_path(Path(bag))
+
+
+def mapper_resolution(bag: Path, downsample: int) -> tuple[int, int]:
+    """(height, width) of the frames the mapper processes."""
+    from panoptic_mapping.dataio import DataInputConfig
+    from panoptic_mapping.dataio.registry import open_dataset
+
+    with open_dataset(bag, DataInputConfig(max_frames=1)) as loader:
+        f = next(iter(loader))
+    return f.depth.shape[0] // downsample, f.depth.shape[1] // downsample
+
+
+def print_cost_model(r: dict, title: str = "") -> None:
+    print(f"{title}{r['frames']} frames {r['resolution'][0]}x{r['resolution'][1]}, {r['keyframes']} keyframes "
+          f"({r['segmentation_calls']} 2D segmentation calls, {r['segmentation_ms_per_call']} ms each, not in the "
+          f"mapper's time)")
+    print(f"  full mapper   {r['full_ms_per_frame']:7.2f} ms/frame = {r['full_fps']:6.1f} frames/s  "
+          f"({r['ratio_full_vs_geometry_only']:.2f}x geometry only, {r['ratio_full_vs_open3d']:.2f}x Open3D)")
+    print(f"  geometry only {r['geometry_only_ms_per_frame']:7.2f} ms/frame = {r['geometry_only_fps']:6.1f} frames/s")
+    print(f"  Open3D        {r['open3d_ms_per_frame']:7.2f} ms/frame (depth-only VoxelBlockGrid, same frames)")
+    print(f"  {'step':20s} {'frames':>6s} {'ms/call':>8s} {'ms/frame':>9s} {'ns/pixel':>9s} {'x Open3D':>9s}")
+    for k, row in r["steps"].items():
+        print(f"  {k:20s} {row['frames']:6d} {row['ms_per_call']:8.2f} {row['ms_per_frame']:9.2f} "
+              f"{row['ns_per_pixel']:9.1f} {row['x_open3d_frame']:9.2f}")
+
+
+def _best(rounds: list[dict]) -> dict:
+    """The round with the fastest full mapper, with each step's best (least loaded) round beside it."""
+    best = dict(min(rounds, key=lambda r: r["full_ms_per_frame"]))
+    best["geometry_only_ms_per_frame"] = min(r["geometry_only_ms_per_frame"] for r in rounds)
+    best["open3d_ms_per_frame"] = min(r["open3d_ms_per_frame"] for r in rounds)
+    best["steps"] = {k: min((r["steps"][k] for r in rounds if k in r["steps"]), key=lambda s: s["ms_per_frame"])
+                     for k in best["steps"]}
+    return best
+
+
+def compare_roots(roots: dict[str, Path], bag: Path, frames: int, rounds: int) -> dict:
+    """The cost model of each checkout (name -> repository root) in alternating subprocesses."""
+    out: dict[str, list[dict]] = {k: [] for k in roots}
+    names = list(roots)
+    for i in range(rounds):
+        for j in range(len(names)):
+            name = names[(i + j) % len(names)]
+            root = roots[name]
+            env = {**os.environ, "PYTHONPATH": str(root), "SCENE_RECON_CONFIG_DIR": str(root / "config")}
+            cmd = [sys.executable, str(Path(__file__).resolve()), "--cost-model-worker", str(root), "--bag", str(bag),
+                   "--frames", str(frames)]
+            res = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True)
+            r = json.loads(res.stdout.strip().splitlines()[-1])
+            out[name].append(r)
+            print(f"round {i + 1} {name:8s} full {r['full_ms_per_frame']:.2f} ms/frame, geometry only "
+                  f"{r['geometry_only_ms_per_frame']:.2f}, Open3D {r['open3d_ms_per_frame']:.2f}", flush=True)
+    return {k: {"best": _best(v), "rounds": v} for k, v in out.items()}
+
+
+def cost_model_main(args: argparse.Namespace) -> int:
+    if args.bag is not None:
+        bag = args.bag
+    else:
+        from scene_recon.synthetic.suite import suite_scene
+
+        bag, _gt = suite_scene(args.scenes[0] if args.scenes else "bench-small", progress=False)
+    frames = args.frames or 120
+    if args.compare_root is None:
+        r = cost_model(bag, frames)
+        print_cost_model(r)
+        print(f"wrote {write_result('mapping_cost_model', r)}")
+        return 0
+    here = Path(__file__).resolve().parent.parent
+    res = compare_roots({"before": args.compare_root.resolve(), "after": here}, bag, frames, args.rounds)
+    before, after = res["before"]["best"], res["after"]["best"]
+    for name, r in (("before", before), ("after", after)):
+        print_cost_model(r, f"{name} (best of {args.rounds} rounds): ")
+    ratios = {"full_ms_per_frame": round(before["full_ms_per_frame"] / after["full_ms_per_frame"], 2),
+              "geometry_only_ms_per_frame": round(before["geometry_only_ms_per_frame"]
+                                                  / after["geometry_only_ms_per_frame"], 2),
+              "steps": {k: round(before["steps"][k]["ms_per_frame"] / max(after["steps"][k]["ms_per_frame"], 1e-9), 2)
+                        for k in before["steps"] if k in after["steps"]}}
+    print("speed-up before/after (ms per frame):", json.dumps(ratios))
+    print(f"wrote {write_result('mapping_cost_model_compare', {**res, 'speedup': ratios})}")
+    return 0
+
+
 def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", nargs="*", default=None)
+    ap.add_argument("--configs", nargs="*", default=list(CONFIGS))
+    ap.add_argument("--frames", type=int, default=0, help="limit frames per scene (0: all; cost model: 120)")
+    ap.add_argument("--cost-model", action="store_true", help="per-step cost model (see above)")
+    ap.add_argument("--bag", type=Path, default=None, help="cost model: a generated bag instead of a suite scene")
+    ap.add_argument("--compare-root", type=Path, default=None, help="cost model: also run this checkout's code")
+    ap.add_argument("--rounds", type=int, default=3, help="cost model with --compare-root: alternating rounds")
+    ap.add_argument("--cost-model-worker", type=Path, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.cost_model_worker is not None:  # a subprocess of --compare-root: that checkout's code first
+        sys.path.insert(0, str(args.cost_model_worker))
+        print(json.dumps(cost_model(args.bag, args.frames)))
+        return 0
+    if args.cost_model:
+        return cost_model_main(args)
     from scene_recon.synthetic.suite import SUITE, suite_scene
 
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scenes", nargs="*", default=list(SUITE))
-    ap.add_argument("--configs", nargs="*", default=list(CONFIGS))
-    ap.add_argument("--frames", type=int, default=0, help="limit frames per scene (0: all)")
-    args = ap.parse_args()
+    args.scenes = args.scenes or list(SUITE)
     results: dict[str, dict] = {}
     tmp = Path(tempfile.mkdtemp(prefix="bench_map_"))
     for name in args.scenes:

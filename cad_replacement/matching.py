@@ -100,13 +100,27 @@ ALL_ROTATIONS: NDArray[np.float64] = _all_rotations()
 UPRIGHT_ROTATIONS: NDArray[np.float64] = np.array([np.rint(_rot_z(k * 0.5 * np.pi)) for k in range(4)])
 
 
+#: Upright yaws that stay distinct under a class's symmetry (0: round, 4: quarter turn, 2: half turn).
+_DISTINCT_YAWS = {0: 1, 4: 1, 2: 2}
+
+
+def _class_symmetry(class_name: str) -> int | None:
+    try:
+        return default_class_table().by_name(class_name).symmetry
+    except UnknownClassError:
+        return None
+
+
 def orientation_set(class_name: str, method: str) -> NDArray[np.float64]:
     """Rotations (model frame -> box frame) tried for a class: 24 for the paper, gravity-restricted for ours."""
     if method == "paper":
         return ALL_ROTATIONS
     if class_policy(class_name).may_lie_down:
         return ALL_ROTATIONS[ALL_ROTATIONS[:, 2, 2] > -0.5]  # every permutation except upside down
-    return UPRIGHT_ROTATIONS
+    # A class whose every instance looks the same after a quarter (half) turn (``symmetry`` in the
+    # class table: bottles) needs one (two) of the four yaws: the others fit the same.
+    symmetry = _class_symmetry(class_name)
+    return UPRIGHT_ROTATIONS[:_DISTINCT_YAWS.get(symmetry, 4) if symmetry is not None else 4]
 
 
 @dataclass(frozen=True, eq=False)
@@ -230,6 +244,82 @@ def _plane_yaw_clusters(planes: ObservedPlanes, tol: float) -> list[tuple[float,
     return sorted(out, key=lambda it: -it[1])
 
 
+#: A round body's handle (``handle_yaw``): the outline must reach this much beyond the body's radius
+#: (m, and as a share of the radius) over at most ``HANDLE_MAX_SPAN`` of the circle.
+HANDLE_MIN_REACH = 0.008
+HANDLE_MIN_REACH_REL = 0.12
+HANDLE_MAX_SPAN = np.radians(100.0)
+_HANDLE_BINS = 36
+
+
+def _circle_fit(xy: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+    """Least-squares circle (Kasa) through 2-D points: centre and radius."""
+    a = np.c_[2.0 * xy, np.ones(len(xy))]
+    b = (xy ** 2).sum(axis=1)
+    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
+    centre = sol[:2]
+    return centre, float(np.sqrt(max(sol[2] + centre @ centre, 0.0)))
+
+
+def handle_yaw(points: NDArray[np.float64]) -> float | None:
+    """Direction (yaw, rad) of a handle on a round body (a cup's), or ``None`` when the outline is round.
+
+    The body's axis is a circle fitted to the outline (per angular bin the outermost points, the bins
+    that reach farthest left out, refitted once); the handle is the bins whose outermost points reach
+    at least ``HANDLE_MIN_REACH`` beyond the body's radius, one contiguous span of at most
+    ``HANDLE_MAX_SPAN``; its direction is the mean direction of the points that stick out. The paper's
+    box frames align a model with the body's extremes, which a handle does not set (a cup's handle came
+    out 34 degrees off, issue 23).
+    """
+    xy = np.asarray(points, dtype=np.float64)[:, :2]
+    if len(xy) < 30:
+        return None
+    centre, _ = _circle_fit(xy)
+    keep = np.ones(len(xy), dtype=bool)
+    for _ in range(2):
+        d = xy - centre
+        ang = np.arctan2(d[:, 1], d[:, 0])
+        rad = np.linalg.norm(d, axis=1)
+        bins = ((ang + np.pi) / (2.0 * np.pi) * _HANDLE_BINS).astype(int) % _HANDLE_BINS
+        outer = np.zeros(_HANDLE_BINS)
+        for b in range(_HANDLE_BINS):
+            sel = rad[bins == b]
+            outer[b] = np.percentile(sel, 95) if len(sel) else np.nan
+        filled = outer[np.isfinite(outer)]
+        if len(filled) < 0.75 * _HANDLE_BINS:
+            return None  # too little of the outline to tell a handle from a missing side
+        body = float(np.median(filled))
+        reach = max(HANDLE_MIN_REACH, HANDLE_MIN_REACH_REL * body)
+        out_bins = np.flatnonzero(np.nan_to_num(outer, nan=0.0) > body + reach)
+        keep = ~np.isin(bins, out_bins) & (rad <= body + 0.5 * reach)
+        if keep.sum() < 20:
+            return None
+        rim = keep & (rad >= np.percentile(rad[keep], 60))  # the outer wall, not the inside
+        centre, _ = _circle_fit(xy[rim]) if rim.sum() >= 10 else (centre, body)
+    if len(out_bins) == 0:
+        return None
+    span = len(out_bins) * 2.0 * np.pi / _HANDLE_BINS
+    mask = np.zeros(_HANDLE_BINS, dtype=bool)
+    mask[out_bins] = True
+    runs = int(np.sum(mask & ~np.roll(mask, 1)))  # contiguous spans on the circle
+    if span > HANDLE_MAX_SPAN or runs != 1:
+        return None
+    d = xy - centre
+    rad = np.linalg.norm(d, axis=1)
+    out = rad > body + 0.5 * reach
+    if out.sum() < 3:
+        return None
+    mean = (d[out] / rad[out, None]).mean(axis=0)
+    return float(np.arctan2(mean[1], mean[0]))
+
+
+def _round_class(class_name: str) -> bool:
+    try:
+        return default_class_table().by_name(class_name).round
+    except UnknownClassError:
+        return False
+
+
 def candidate_frames(obs: ObjectObservation, planes: ObservedPlanes, extra: int = 2) -> list[GravityBox]:
     """Box frames whose axes the model axes are aligned to: the observed box, plus (ours) the frames
     of the largest vertical planes.
@@ -238,11 +328,12 @@ def candidate_frames(obs: ObjectObservation, planes: ObservedPlanes, extra: int 
     vertical planes (sides, front, back) still show the body's axes. Vertical planes are grouped
     by yaw modulo a quarter turn (within 5 degrees, ``_plane_yaw_clusters``); a group within
     5 degrees of the observed box replaces the box's yaw (fitted planes pin the yaw better than
-    the extreme points of a box), the other groups add frames, largest area first.
+    the extreme points of a box), the other groups add frames, largest area first. A round class's
+    body with a handle (``handle_yaw``) has the handle's frame alone.
     """
     box = obs.gravity_box
     frames = [box]
-    if extra <= 0 or len(planes.normals) == 0:
+    if extra <= 0:
         return frames
     tol = np.radians(5.0)
     quarter = 0.5 * np.pi
@@ -250,6 +341,12 @@ def candidate_frames(obs: ObjectObservation, planes: ObservedPlanes, extra: int 
     def gap(a: float, b: float) -> float:
         return abs(((a - b + 0.5 * quarter) % quarter) - 0.5 * quarter)
 
+    if _round_class(obs.class_name):
+        # A round body's box has no meaningful axes; a handle has (model +x is the handle's side): the
+        # handle's frame is then the only one (the box's, up to 45 degrees off, had filled the fits).
+        handle = handle_yaw(obs.points)
+        if handle is not None:
+            return [box_in_frame(obs.points, handle)]
     clusters = _plane_yaw_clusters(planes, tol)
     near_box = [yaw for yaw, _ in clusters if gap(yaw, box.yaw) <= tol]
     if near_box:
@@ -292,6 +389,12 @@ def _articulated_class(class_name: str) -> bool:
         return default_class_table().by_name(class_name).category == "articulated"
     except UnknownClassError:
         return False
+
+
+def _has_front(class_name: str) -> bool:
+    """Whether a class's models have a front that orientation must get right: articulated ones (doors,
+    drawers) and front-facing ones (a chair's backrest, a sofa's, a monitor's screen)."""
+    return _articulated_class(class_name) or class_policy(class_name).front_facing
 
 
 def _open_parts_capped(s_x: NDArray[np.float64], s_y: NDArray[np.float64], rots: NDArray[np.float64],
@@ -411,7 +514,7 @@ def match_candidates(
     best = sorted(heap, key=lambda it: (-it[0], it[1]))
     if not paper:
         best += _orientation_siblings(best, frame_idx, model_idx, candidates, lower, framed, model_planes, rots,
-                                      s_x_norms, s_y_norm, cfg, obs.class_name)
+                                      s_x_norms, s_y_norm, cfg, obs.class_name, lower - w_front * d_front)
     out = []
     for neg_err, h, d_plane, assignment in best:
         entry, feats = candidates[model_idx[h]]
@@ -434,8 +537,8 @@ def match_candidates(
     return MatchResult(out, len(rows), scored, n_obs, time.perf_counter() - t0, {"planes": t_planes})
 
 
-#: Ours: the best articulated models of the ranking (distinct models, each in the box frame it ranks
-#: best in) keep all their upright orientations.
+#: Ours: the best models with a front (articulated or front-facing classes) of the ranking (distinct
+#: models, each in the box frame it ranks best in) keep all their upright orientations.
 SIBLING_MODELS = 6
 
 
@@ -452,23 +555,42 @@ def _orientation_siblings(
     s_y_norm: NDArray[np.float64],
     cfg: CadReplacementConfig,
     class_name: str,
+    unhinted: NDArray[np.float64] | None = None,
 ) -> list[tuple[float, int, float, tuple[tuple[int, int], ...]]]:
-    """The other upright orientations of the best few articulated models (same frame), scored.
+    """The other upright orientations of the best few models with a front (same frame), scored.
 
-    Box proportions and the context's front hint cannot tell which side of a cabinet is its front
-    when a door stands open (the box is inflated along the front, the hint comes from free space
-    around an inflated box); the screening fits with the articulation envelope can. So those
-    orientations reach it even when the Matching Error ranks them below the top-k.
+    Box proportions and the context's front hint cannot tell which side of a cabinet (or a chair) is
+    its front when a door stands open (the box is inflated along the front, the hint comes from free
+    space around an inflated box, or from a corner's other free side); the screening fits can (with
+    the articulation envelope; a chair's backrest). So those
+    orientations reach it even when the Matching Error ranks them below the top-k. Half of the
+    models are the best of the ranking, half the best by the lower bound without the front term
+    (``unhinted``): a hint from a corner's free side (issue 23) had pushed every orientation of the
+    model that was the object out of the top-k, and a model of another front turned sideways won.
     """
     have = {int(h) for _e, h, _d, _a in best}
     seen: list[tuple[int, int]] = []  # (frame, model) of each model's best-ranked hypothesis
     # distinct models (one model ranked best in each box frame must not use up the slots), those of
     # the observed class first (the detector's label is trusted; a flood of confusable models of a
     # larger library must not crowd out the observed class's own)
-    ranked = sorted(best, key=lambda it: candidates[int(model_idx[it[1]])][0].class_name != class_name)
-    for _e, h, _d, _a in ranked:
+    ranked = [h for _e, h, _d, _a in sorted(
+        best, key=lambda it: candidates[int(model_idx[it[1]])][0].class_name != class_name)]
+    if unhinted is not None:
+        own = np.array([candidates[int(i)][0].class_name == class_name for i in model_idx])
+        order = np.lexsort((unhinted, ~own))  # the observed class first, then by the bound
+        by_bound: list[int] = []
+        models: set[int] = set()
+        for h in order:
+            if len(by_bound) >= SIBLING_MODELS // 2:
+                break
+            mi = int(model_idx[h])
+            if mi not in models and _has_front(candidates[mi][0].class_name):
+                models.add(mi)
+                by_bound.append(int(h))
+        ranked = ranked[:SIBLING_MODELS - len(by_bound)] + by_bound + ranked[SIBLING_MODELS - len(by_bound):]
+    for h in ranked:
         key = (int(frame_idx[h]), int(model_idx[h]))
-        if all(m != key[1] for _f, m in seen) and _articulated_class(candidates[key[1]][0].class_name):
+        if all(m != key[1] for _f, m in seen) and _has_front(candidates[key[1]][0].class_name):
             seen.append(key)
         if len(seen) >= SIBLING_MODELS:
             break

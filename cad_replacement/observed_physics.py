@@ -17,6 +17,7 @@ under each object resting on it, at the height the child ended up.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -24,7 +25,7 @@ import numpy as np
 import trimesh
 from numpy.typing import NDArray
 
-from cad_replacement.cad.model import Link
+from cad_replacement.cad.model import CadModel, Link
 from cad_replacement.collision import box_shape, shape_mesh
 from cad_replacement.scene_model import PlacedObject
 from recon_core.kinematic_tree import CollisionShape
@@ -52,6 +53,64 @@ def _world_pieces(obj: PlacedObject) -> list[trimesh.Trimesh]:
             m.apply_transform(poses[link.name])
             out.append(m)
     return out
+
+
+#: Link-frame collision pieces of recently seen models (``settle_observed`` runs twice per scene, and
+#: every replacement of a running node's graph): model id -> (the model, [(link, piece)]).
+_LOCAL_PIECES: OrderedDict[int, tuple[CadModel, list[tuple[str, trimesh.Trimesh, bool]]]] = OrderedDict()
+_LOCAL_PIECES_SIZE = 256
+
+
+def _local_pieces(model: CadModel) -> list[tuple[str, trimesh.Trimesh, bool]]:
+    """(link name, closed convex piece in the link frame, whether it is a shape's mesh) of a model, as
+    ``_world_pieces`` builds them before moving them into the map."""
+    hit = _LOCAL_PIECES.get(id(model))
+    if hit is not None and hit[0] is model:
+        _LOCAL_PIECES.move_to_end(id(model))
+        return hit[1]
+    out: list[tuple[str, trimesh.Trimesh, bool]] = []
+    for link in model.links:
+        shapes = link.collisions
+        if shapes is None:
+            if len(link.mesh.faces):
+                out.append((link.name, link.mesh.convex_hull, False))
+            continue
+        out.extend((link.name, shape_mesh(shape), True) for shape in shapes)
+    _LOCAL_PIECES[id(model)] = (model, out)
+    while len(_LOCAL_PIECES) > _LOCAL_PIECES_SIZE:
+        _LOCAL_PIECES.popitem(last=False)
+    return out
+
+
+class _PlacedPieces:
+    """The collision pieces of one placed object in the map: their bounds at once (from the link-frame
+    vertices), each closed mesh only when a test needs it (most pieces are far from every observed
+    object; building every piece of every object took 1-2 s per call on a 20-object scene)."""
+
+    def __init__(self, obj: PlacedObject) -> None:
+        self._local = _local_pieces(obj.model)
+        self._poses = obj.link_poses()
+        self._built: dict[int, trimesh.Trimesh] = {}
+        corners = []
+        for link, local, _shape in self._local:
+            pose = np.asarray(self._poses[link], dtype=np.float64, order="C")
+            v = np.asarray(local.vertices, np.float64)
+            if not trimesh.util.allclose(pose, np.eye(4), 1e-8):  # as ``apply_transform`` (it skips identities)
+                v = trimesh.transformations.transform_points(v, matrix=pose)
+            corners.append(np.array([v.min(axis=0), v.max(axis=0)]) if len(v) else _bounds(trimesh.Trimesh()))
+        self.bounds = np.array(corners, np.float64).reshape(-1, 2, 3)
+
+    def __len__(self) -> int:
+        return len(self._local)
+
+    def piece(self, k: int) -> trimesh.Trimesh:
+        """The ``k``-th piece in the map, as ``_world_pieces`` builds it."""
+        hit = self._built.get(k)
+        if hit is None:
+            link, local, shape = self._local[k]
+            hit = local.copy(include_cache=shape).apply_transform(self._poses[link])
+            self._built[k] = hit
+        return hit
 
 
 def _inside(points: NDArray[np.float64], piece: trimesh.Trimesh) -> NDArray[np.bool_]:
@@ -84,8 +143,16 @@ def _probes(piece: trimesh.Trimesh, depth: float) -> NDArray[np.float64]:
     return np.concatenate(out)
 
 
-def _overlap(a: trimesh.Trimesh, b: trimesh.Trimesh) -> bool:
-    return bool(np.all(a.bounds[0] <= b.bounds[1]) and np.all(b.bounds[0] <= a.bounds[1]))
+def _bounds(piece: trimesh.Trimesh) -> NDArray[np.float64]:
+    """Min/max corners of a piece; an empty one overlaps nothing."""
+    if len(piece.vertices) == 0:
+        return np.array([[np.inf] * 3, [-np.inf] * 3])
+    return np.asarray(piece.bounds, np.float64)
+
+
+def _overlaps(box: NDArray[np.float64], others: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Which of ``others`` ((n, 2, 3) min/max corners) overlap ``box`` ((2, 3)), touching included."""
+    return np.all(box[0] <= others[:, 1], axis=1) & np.all(others[:, 0] <= box[1], axis=1)
 
 
 def settle_observed(objects: Sequence[PlacedObject], *, drop: bool = True,
@@ -96,7 +163,11 @@ def settle_observed(objects: Sequence[PlacedObject], *, drop: bool = True,
     observed = [o for o in objects if o.model.source == "observed" and len(o.model.links) == 1]
     if not observed:
         return {}
-    world = {o.name: _world_pieces(o) for o in objects}
+    # every object's pieces and their bounds, only when some piece may be dropped (the bounds once per
+    # piece: trimesh's cached ``bounds`` hashes the mesh at every read, 95k reads took 3 s on a 20-object scene)
+    dropping = drop and any(o.movable and o.model.links[0].collisions for o in observed)
+    world = {o.name: _PlacedPieces(o) for o in objects} if dropping else {}
+    bounds = {name: pieces.bounds for name, pieces in world.items()}
     changes: dict[str, dict[str, int]] = {}
     for obj in observed:
         link = obj.model.links[0]
@@ -104,12 +175,15 @@ def settle_observed(objects: Sequence[PlacedObject], *, drop: bool = True,
         kept = shapes
         dropped = 0
         if drop and obj.movable and shapes:
-            others = [p for o in objects if o.name != obj.name and o.parent != obj.name for p in world[o.name]]
-            pieces = world[obj.name]
+            names = [o.name for o in objects if o.name != obj.name and o.parent != obj.name]
+            others = [(world[n], k) for n in names for k in range(len(world[n]))]
+            other_bounds = np.concatenate([bounds[n] for n in names]) if names else np.zeros((0, 2, 3))
+            own = world[obj.name]
             keep = []
-            for shape, piece in zip(shapes, pieces, strict=True):
-                probes = _probes(piece, PIECE_DEPTH)
-                hit = any(_overlap(piece, other) and bool(np.any(_inside(probes, other))) for other in others)
+            for k, (shape, box) in enumerate(zip(shapes, bounds[obj.name], strict=True)):
+                probes = _probes(own.piece(k), PIECE_DEPTH)
+                near = np.flatnonzero(_overlaps(box, other_bounds))
+                hit = any(bool(np.any(_inside(probes, others[i][0].piece(others[i][1])))) for i in near)
                 if not hit:
                     keep.append(shape)
             if keep and len(keep) < len(shapes):

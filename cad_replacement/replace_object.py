@@ -294,6 +294,19 @@ def _selection_factor(m: MatchCandidate, cfg: CadReplacementConfig) -> float:
     return (1.0 + cfg.front_ae_factor * m.d_front) * (1.0 + cfg.class_ae_factor * m.d_class)
 
 
+#: Ours: a fitted candidate's score grows by this factor times its scale distortion (the largest
+#: deviation of a log axis scale from their mean): a model that fits only stretched 1.7x along one axis
+#: and squeezed 0.7x along another is the wrong model or turned sideways (issue 23: a two-drawer cabinet
+#: turned 90 degrees, stretched over a two-door one's depth, beat the right orientation by its closed
+#: drawers' AE and a front hint from the corner's other free side).
+DISTORTION_FACTOR = 0.5
+
+
+def _distortion_factor(scale: NDArray[np.float64]) -> float:
+    logs = np.log(np.maximum(np.asarray(scale, dtype=np.float64), EPS))
+    return 1.0 + DISTORTION_FACTOR * float(np.max(np.abs(logs - logs.mean())))
+
+
 def _align_ours(
     obs: ObjectObservation,
     prepared: PreparedObservation,
@@ -455,7 +468,7 @@ class _FullFit:
                 break
         values = art.values if art is not None else scaled.zero_configuration()
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
-        score2 = ae.ae * _selection_factor(m, cfg)
+        score2 = ae.ae * _selection_factor(m, cfg) * _distortion_factor(pl.scale)
         return CandidateResult(m, pl, ae, score2, values, "full", cost2, nfev + nfev2, art)
 
 
@@ -478,37 +491,90 @@ def _front_unexplained(best: CandidateResult, geom: ModelGeometry, prepared: Pre
     return bool(np.mean(d > cfg.layout_outlier_m) >= cfg.layout_outlier_share)
 
 
+#: A fitted candidate whose two-sided AE is at most this share of the observed box diagonal (clipped to
+#: ``LAYOUT_EXPLAINED_AE``) and that leaves fewer than ``layout_outlier_share`` of the points unexplained
+#: already explains the observation: no front layout may replace it (issue 23: an in-library cabinet with
+#: three joints became another model's five-drawer layout turned sideways).
+LAYOUT_EXPLAINED_REL = 0.005
+LAYOUT_EXPLAINED_AE = (0.003, 0.008)
+#: The layouts of the best fitted candidate of this many distinct orientations are searched: when the
+#: library holds no model with the object's front, the best candidate may be a model turned sideways with
+#: its drawers pulled out to cover the body's depth, while the right orientation of the same carcass with
+#: the right front explains it (a two-door cabinet fitted as a two-drawer one turned 90 degrees).
+LAYOUT_ORIENTATIONS = 2
+#: ... when the other orientation's best candidate scores within this factor of the best.
+LAYOUT_RIVAL_SCORE = 1.5
+#: Two candidates are distinct orientations when their yaws differ by more than this (rad); a variant whose
+#: full fit turns it farther than this from the pose it started at is dropped (a new front never turns the
+#: carcass it was found on).
+LAYOUT_YAW_TOL = np.radians(20.0)
+
+
+def _yaw_gap(a: float, b: float) -> float:
+    return float(abs((a - b + np.pi) % (2.0 * np.pi) - np.pi))
+
+
+def _explains(r: CandidateResult, geom: ModelGeometry, prepared: PreparedObservation,
+              cfg: CadReplacementConfig) -> bool:
+    """Whether a fully fitted candidate already explains the observation (no front to search for)."""
+    diagonal = float(np.linalg.norm(np.asarray(prepared.obs.gravity_box.size, dtype=np.float64)))
+    limit = float(np.clip(LAYOUT_EXPLAINED_REL * diagonal, *LAYOUT_EXPLAINED_AE))
+    if not (np.isfinite(r.ae.ae) and r.ae.ae <= limit and r.ae.ae_points <= limit):
+        return False
+    scaled = geom.bare_model.scaled(r.placement.scale)
+    rigid = Placement(r.placement.rotation, r.placement.translation, np.ones(3))
+    scene = posed_scene(scaled.mesh(r.joint_values), rigid)
+    d = scene.compute_distance(o3c.Tensor(prepared.fit_points.astype(np.float32))).numpy()
+    return bool(np.mean(d > cfg.layout_outlier_m) < cfg.layout_outlier_share)
+
+
 def _layout_search(results: Sequence[CandidateResult], screened_x: dict[int, NDArray[np.float64]],
                    cache: GeometryCache, fitter: _FullFit, cfg: CadReplacementConfig) -> list[CandidateResult]:
-    """Full fits of the best candidate's most promising other front layouts (``cad.layouts``).
+    """Full fits of the best candidates' most promising other front layouts (``cad.layouts``).
 
     Only procedural models of classes with layouts have variants, and they are tried only when
-    the best candidate does not explain the front (``_front_unexplained``). Each variant keeps
-    the model's carcass, so the screened pose (fitted through the articulation envelope, where an
-    open door does not stretch the body) is its start: the variants are ranked by their AE there,
-    at joint values estimated there (no LM), and the best ``layout_fits`` get the full fit. A
-    variant must beat the library's own model by ``layout_margin``."""
-    full = [r for r in results if r.stage == "full"]
+    no fitted candidate already explains the observation (``_explains``: a library model that does is
+    never replaced) and the best candidate does not explain the front (``_front_unexplained``). The
+    best fitted candidates of the ``LAYOUT_ORIENTATIONS`` best distinct orientations are searched (the
+    second only when it scores within ``LAYOUT_RIVAL_SCORE`` of the best and leaves its front
+    unexplained too). Each variant keeps the model's carcass, so the screened pose (fitted
+    through the articulation envelope, where an open door does not stretch the body) is its start:
+    the variants are ranked by their AE there, at joint values estimated there (no LM), and the best
+    ``layout_fits`` get the full fit, which must keep the orientation it started in
+    (``LAYOUT_YAW_TOL``). A variant must beat the library's own model by ``layout_margin``."""
+    full = sorted((r for r in results if r.stage == "full"), key=lambda r: r.score)
     if not full:
         return []
-    best = min(full, key=lambda r: r.score)
-    x = screened_x.get(id(best.match))
-    variants = layout_variants(best.match.entry)
-    if x is None or not variants:
+    if any(_explains(r, cache.get(r.match.entry), fitter.prepared, cfg) for r in full[:cfg.screen_keep]):
         return []
-    if not _front_unexplained(best, cache.get(best.match.entry), fitter.prepared, cfg):
+    if not _front_unexplained(full[0], cache.get(full[0].match.entry), fitter.prepared, cfg):
         return []
-    ranked: list[tuple[float, MatchCandidate, ModelGeometry]] = []
-    for entry in variants:
-        geom = cache.get(entry)
-        m = dataclasses.replace(best.match, entry=entry)
-        ranked.append((fitter.quick_error(m, geom, x), m, geom))
-    ranked.sort(key=lambda it: it[0])
+    bases: list[CandidateResult] = []
+    for r in full:
+        if len(bases) >= LAYOUT_ORIENTATIONS or r.score > LAYOUT_RIVAL_SCORE * full[0].score:
+            break
+        if all(_yaw_gap(r.yaw, b.yaw) > LAYOUT_YAW_TOL for b in bases):
+            bases.append(r)
     out = []
-    for _err, m, geom in ranked[:cfg.layout_fits]:
-        r = fitter.fit(m, geom, x.copy(), 0.0, 0)
-        r.score *= 1.0 + cfg.layout_margin
-        out.append(r)
+    for best in bases:
+        x = screened_x.get(id(best.match))
+        variants = layout_variants(best.match.entry)
+        if x is None or not variants:
+            continue
+        if best is not full[0] and not _front_unexplained(best, cache.get(best.match.entry), fitter.prepared, cfg):
+            continue
+        ranked: list[tuple[float, MatchCandidate, ModelGeometry]] = []
+        for entry in variants:
+            geom = cache.get(entry)
+            m = dataclasses.replace(best.match, entry=entry)
+            ranked.append((fitter.quick_error(m, geom, x), m, geom))
+        ranked.sort(key=lambda it: it[0])
+        for _err, m, geom in ranked[:cfg.layout_fits]:
+            r = fitter.fit(m, geom, x.copy(), 0.0, 0)
+            if _yaw_gap(r.yaw, best.yaw) > LAYOUT_YAW_TOL:
+                continue
+            r.score *= 1.0 + cfg.layout_margin
+            out.append(r)
     return out
 
 

@@ -22,19 +22,27 @@ import logging
 import multiprocessing
 import os
 import signal
+import threading
+import time
 from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from recon_core.classes import ClassTable
+from .result_store import ResultStore, library_digest, library_result_store, result_key
 
-from .geometry_cache import GeometryCache, library_store
-from .observation import ObjectObservation
-from .replace_config import CadReplacementConfig
-from .replace_object import CadSource, ObjectReplacement, replace_object
+if TYPE_CHECKING:  # the fits' modules (Open3D, trimesh, scipy: 1-2 s) load where they run, not on import
+    from recon_core.classes import ClassTable
+
+    from .geometry_cache import GeometryCache
+    from .observation import ObjectObservation
+    from .replace_config import CadReplacementConfig
+    from .replace_object import CadSource, ObjectReplacement
 
 log = logging.getLogger(__name__)
+
+#: What the fork server imports once, so that every worker forked from it starts warm.
+_PRELOAD = ("cad_replacement.replace_object", "cad_replacement.geometry_cache", "scene_graph.blas")
 
 #: Most workers ``auto`` starts: beyond a few, the scene's largest objects bound the wall time.
 MAX_AUTO_WORKERS = 4
@@ -71,13 +79,20 @@ def _init_worker(library: Any) -> None:
 
 
 def _replace_in_worker(obs: ObjectObservation, config: CadReplacementConfig,
-                       class_table: ClassTable | None) -> ObjectReplacement:
+                       class_table: ClassTable | None, key: str | None = None) -> ObjectReplacement:
+    """Replace one object; with ``key``, store the result for later processes (``result_store``)."""
+    from .geometry_cache import GeometryCache, library_store
+    from .replace_object import replace_object
+
     cache = _CACHES.get(config.ae_model_samples)
     if cache is None:
         cache = GeometryCache(_LIBRARY.model, samples=config.ae_model_samples, store=library_store(_LIBRARY))
         _CACHES[config.ae_model_samples] = cache
     rep = replace_object(obs, _LIBRARY, config, cache=cache, class_table=class_table)
     rep.model = None  # the caller rebuilds it from the entry: meshes are costly to send back
+    store = library_result_store(_LIBRARY) if key is not None else None
+    if store is not None and key is not None:
+        store.save(key, rep)
     return rep
 
 
@@ -128,27 +143,67 @@ def open3d_threads(limit: int | None) -> Iterator[None]:
 def _context() -> multiprocessing.context.BaseContext:
     if "forkserver" in multiprocessing.get_all_start_methods():
         ctx = multiprocessing.get_context("forkserver")
-        # The fork server imports this module (numpy, Open3D, trimesh, the CAD code) once; workers
-        # forked from it start in milliseconds instead of re-importing.
-        ctx.set_forkserver_preload([__name__])
+        # The fork server imports the CAD code (numpy, Open3D, trimesh, scipy) once; workers forked
+        # from it start in milliseconds instead of re-importing.
+        ctx.set_forkserver_preload([__name__, *_PRELOAD])
         return ctx
     return multiprocessing.get_context("spawn")
 
 
-class ReplaceWorkers:
-    """A lazily started pool of ``workers`` processes replacing objects of one library."""
+def prestart_fork_server() -> bool:
+    """Start the fork server now (single-threaded runtimes, like the workers), so that it imports the
+    CAD code while this process does other work: a command-line ``replace`` had waited 1.5-2 s for
+    those imports when its first object was submitted. Returns whether one was started (or runs)."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return False
+    from multiprocessing import forkserver
 
-    def __init__(self, library: CadSource, workers: int) -> None:
+    _context()
+    try:
+        with _single_threaded_children():
+            forkserver.ensure_running()
+    except (OSError, ValueError, RuntimeError) as exc:
+        log.warning("CAD replacement fork server could not start (%s)", exc)
+        return False
+    return True
+
+
+class ReplaceWorkers:
+    """A lazily started pool of ``workers`` processes replacing objects of one library.
+
+    ``store`` (default: none; ``"library"``: beside the library's feature cache, ``result_store``)
+    keeps every result on disk: a job whose result a process stored before (same observation,
+    settings, library and code) is answered from there, and the pool starts only for a job that
+    is not."""
+
+    def __init__(self, library: CadSource, workers: int, store: ResultStore | str | None = None) -> None:
         self.library = library
         self.workers = max(int(workers), 1)
         self._pool: ProcessPoolExecutor | None = None
+        self._lock = threading.Lock()
         self.failed = False
+        if store is not None and store != "library" and not isinstance(store, ResultStore):
+            raise ValueError(f"store must be a ResultStore, 'library' or None, got {store!r}")
+        self.store: ResultStore | None = library_result_store(library) if store == "library" else \
+            store if isinstance(store, ResultStore) else None
+        self._library_hash: str | None = None
+        #: Jobs answered from the result store / sent to the workers (for tests and the records).
+        self.restored = 0
+        self.submitted = 0
 
     @property
     def started(self) -> bool:
         return self._pool is not None
 
+    def start(self) -> None:
+        """Start the workers now (else on the first job the store cannot answer)."""
+        self._ensure()
+
     def _ensure(self) -> ProcessPoolExecutor | None:
+        with self._lock:
+            return self._ensure_locked()
+
+    def _ensure_locked(self) -> ProcessPoolExecutor | None:
         if self._pool is None and not self.failed:
             try:
                 with _single_threaded_children():
@@ -168,12 +223,28 @@ class ReplaceWorkers:
 
     def submit(self, obs: ObjectObservation, config: CadReplacementConfig,
                class_table: ClassTable | None) -> Future[ObjectReplacement] | None:
-        """Start replacing one observation; ``None`` when the pool is unavailable (replace in-process)."""
+        """Start replacing one observation; ``None`` when the pool is unavailable (replace in-process).
+        A result in the store comes back as a finished future (its timings carry ``restored_s``)."""
+        key = None
+        if self.store is not None:
+            t0 = time.perf_counter()
+            if self._library_hash is None:
+                self._library_hash = library_digest(self.library) or ""
+            if self._library_hash:
+                key = result_key(obs, config, class_table, self._library_hash)
+                stored = self.store.load(key)
+                if stored is not None and getattr(stored, "entity_id", None) == obs.entity_id:
+                    stored.timings = {**stored.timings, "restored_s": time.perf_counter() - t0}
+                    done: Future[ObjectReplacement] = Future()
+                    done.set_result(stored)
+                    self.restored += 1
+                    return done
         pool = self._ensure()
         if pool is None:
             return None
         try:
-            return pool.submit(_replace_in_worker, obs, config, class_table)
+            self.submitted += 1
+            return pool.submit(_replace_in_worker, obs, config, class_table, key)
         except (BrokenProcessPool, RuntimeError) as exc:
             self._fail(exc)
             return None
@@ -192,15 +263,17 @@ class ReplaceWorkers:
     def _fail(self, exc: BaseException) -> None:
         log.warning("CAD replacement workers failed (%s): replacing in this process from now on", exc)
         self.failed = True
-        pool, self._pool = self._pool, None
+        with self._lock:
+            pool, self._pool = self._pool, None
         if pool is not None:
             pool.shutdown(wait=False, cancel_futures=True)
 
     def close(self) -> None:
         """Stop the workers (idempotent); a later ``replace`` starts new ones."""
-        pool, self._pool = self._pool, None
+        with self._lock:
+            pool, self._pool = self._pool, None
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
 
 
-__all__ = ["MAX_AUTO_WORKERS", "ReplaceWorkers", "resolve_workers", "usable_cpus"]
+__all__ = ["MAX_AUTO_WORKERS", "ReplaceWorkers", "prestart_fork_server", "resolve_workers", "usable_cpus"]

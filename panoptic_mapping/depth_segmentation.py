@@ -18,6 +18,9 @@ arithmetic (and its float32 rounding) is the same, operation by operation, as th
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import cv2
 import numpy as np
 
@@ -89,46 +92,67 @@ def smooth_points(points: np.ndarray, valid: np.ndarray, smoothing: int) -> np.n
     return cv2.merge(list(_smooth_planes(planes, valid.astype(np.float32), valid, smoothing)))  # type: ignore[arg-type]
 
 
-def _normal_planes(points: Planes, smooth: Planes, valid: np.ndarray, step: int) -> tuple[Planes, np.ndarray]:
-    """Unit normals facing the camera (planar; 0 where unknown) from central differences of the
-    smoothed points, and the mask of pixels that have one."""
+def _normal_band(points: Planes, smooth: Planes, valid: np.ndarray, step: int, r0: int, r1: int,
+                 n_out: Planes, ok_out: np.ndarray) -> None:
+    """`_normal_planes` for the image rows [r0, r1), into those rows of `n_out` and `ok_out`."""
     h, w = valid.shape
-    s = step
+    s, rows = step, r1 - r0
+    a, b = max(r0, s), min(r1, h - s)  # rows with a vertical difference
     dx: list[np.ndarray] = []
     dy: list[np.ndarray] = []
     for sc in smooth:
-        a = np.zeros((h, w), np.float32)
-        np.subtract(sc[:, 2 * s:], sc[:, : -2 * s], out=a[:, s:-s])
-        dx.append(a)
-        b = np.zeros((h, w), np.float32)
-        np.subtract(sc[2 * s:, :], sc[: -2 * s, :], out=b[s:-s, :])
-        dy.append(b)
-    tmp = np.empty((h, w), np.float32)
-    n: list[np.ndarray] = []
-    for i, j in ((1, 2), (2, 0), (0, 1)):  # n = dx x dy, as numpy's cross computes it
-        c = np.multiply(dx[i], dy[j])
+        gx = np.zeros((rows, w), np.float32)
+        np.subtract(sc[r0:r1, 2 * s:], sc[r0:r1, : -2 * s], out=gx[:, s:-s])
+        dx.append(gx)
+        gy = np.zeros((rows, w), np.float32)
+        if b > a:
+            np.subtract(sc[a + s:b + s], sc[a - s:b - s], out=gy[a - r0:b - r0])
+        dy.append(gy)
+    tmp = np.empty((rows, w), np.float32)
+    n = [c[r0:r1] for c in n_out]
+    for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):  # n = dx x dy, as numpy's cross computes it
+        np.multiply(dx[i], dy[j], out=n[k])
         np.multiply(dx[j], dy[i], out=tmp)
-        c -= tmp
-        n.append(c)
+        n[k] -= tmp
     sq = np.multiply(n[0], n[0])
     np.multiply(n[1], n[1], out=tmp)
     sq += tmp
     np.multiply(n[2], n[2], out=tmp)
     sq += tmp
     norm = np.sqrt(sq, out=sq)
-    ok = valid & (norm > _EPS)
+    ok = ok_out[r0:r1]
+    np.greater(norm, _EPS, out=ok)
+    ok &= valid[r0:r1]
     ok[:, :s] = ok[:, -s:] = False
-    ok[:s, :] = ok[-s:, :] = False
+    ok[: max(0, min(rows, s - r0)), :] = False
+    ok[max(0, h - s - r0):, :] = False
     np.maximum(norm, _EPS, out=norm)
     bad = ~ok
     for nc in n:
         np.divide(nc, norm, out=nc)
         np.copyto(nc, 0.0, where=bad)
     # face the camera: n . p < 0
-    flip = _dot3((n[0], n[1], n[2]), points, out=norm, tmp=tmp) > 0
+    flip = _dot3((n[0], n[1], n[2]), (points[0][r0:r1], points[1][r0:r1], points[2][r0:r1]), out=norm,
+                 tmp=tmp) > 0
     for nc in n:
         np.negative(nc, out=nc, where=flip)
-    return (n[0], n[1], n[2]), ok
+
+
+def _normal_planes(points: Planes, smooth: Planes, valid: np.ndarray, step: int) -> tuple[Planes, np.ndarray]:
+    """Unit normals facing the camera (planar; 0 where unknown) from central differences of the
+    smoothed points, and the mask of pixels that have one. With `THREADS` > 1 the lower half of the
+    rows runs on a second thread (the same arithmetic per pixel: the same result)."""
+    h, w = valid.shape
+    n_out = (np.empty((h, w), np.float32), np.empty((h, w), np.float32), np.empty((h, w), np.float32))
+    ok = np.empty((h, w), bool)
+    if THREADS < 2 or h < 64:
+        _normal_band(points, smooth, valid, step, 0, h, n_out, ok)
+    else:
+        mid = h // 2
+        other = _pool().submit(_normal_band, points, smooth, valid, step, mid, h, n_out, ok)
+        _normal_band(points, smooth, valid, step, 0, mid, n_out, ok)
+        other.result()
+    return n_out, ok
 
 
 def estimate_normals(points: np.ndarray, valid: np.ndarray, step: int = 2, smoothing: int = 2) -> np.ndarray:
@@ -139,40 +163,69 @@ def estimate_normals(points: np.ndarray, valid: np.ndarray, step: int = 2, smoot
     return cv2.merge(list(n))
 
 
+def _edge_cuts(points: Planes, normals: Planes, valid: np.ndarray, margin: np.ndarray, neg_margin: np.ndarray,
+               conv: np.float32, combos: list[tuple[int, int]], edge: np.ndarray) -> np.ndarray:
+    """OR into `edge` the cuts against the neighbours at the (offset, axis) `combos`, both directions."""
+    h, w = valid.shape
+    for off, axis in combos:  # the neighbour below / to the right (+off) and above / to the left (-off)
+        lo = (slice(0, h - off), slice(None)) if axis == 0 else (slice(None), slice(0, w - off))
+        hi = (slice(off, h), slice(None)) if axis == 0 else (slice(None), slice(off, w))
+        diff = (np.subtract(points[0][hi], points[0][lo]), np.subtract(points[1][hi], points[1][lo]),
+                np.subtract(points[2][hi], points[2][lo]))  # p(x + off) - p(x)
+        tmp = np.empty(diff[0].shape, np.float32)
+        nlo = (normals[0][lo], normals[1][lo], normals[2][lo])
+        nhi = (normals[0][hi], normals[1][hi], normals[2][hi])
+        # normals disagree: n(x) . n(x + off) < min_convexity (the same for both directions)
+        concave_pair = _dot3(nlo, nhi, tmp=tmp) < conv
+        # + direction: pixel x, neighbour x + off: d = (p(x+off) - p(x)) . n(x)
+        d = _dot3(diff, nlo, tmp=tmp)
+        cut = (d > margin[lo]) | (d < neg_margin[lo]) | ((d > 0) & concave_pair)
+        cut &= valid[hi]
+        edge[lo] |= cut
+        # - direction: pixel x + off, neighbour x: d = (p(x) - p(x+off)) . n(x+off) = -e
+        e = _dot3(diff, nhi, out=d, tmp=tmp)
+        cut = (e < neg_margin[hi]) | (e > margin[hi]) | ((e < 0) & concave_pair)
+        cut &= valid[lo]
+        edge[hi] |= cut
+    return edge
+
+
 def _edge_planes(points: Planes, normals: Planes, valid: np.ndarray, has_normal: np.ndarray,
                  cfg: DepthSegmentationConfig, scale: float = 1.0) -> np.ndarray:
-    """Boolean (H, W) edge map from planar smoothed points and normals (see `edge_map`)."""
+    """Boolean (H, W) edge map from planar smoothed points and normals (see `edge_map`).
+
+    With `THREADS` > 1 half of the (offset, axis) neighbour sets run on a second thread (numpy releases
+    the interpreter lock in its loops), each into its own mask; the union is the same either way."""
     edge = ~(valid & has_normal)
     z = points[2]
     margin = np.maximum(np.float32(cfg.max_discontinuity_ratio) * z, np.float32(cfg.min_discontinuity_m))
     neg_margin = -margin
     conv = np.float32(cfg.min_convexity)
     h, w = valid.shape
+    combos = []
     for off in cfg.neighbour_offsets:
         off = max(1, round(off * scale))
-        for axis in (0, 1):  # the neighbour below / to the right (+off) and above / to the left (-off)
-            if off >= (h if axis == 0 else w):
-                continue
-            lo = (slice(0, h - off), slice(None)) if axis == 0 else (slice(None), slice(0, w - off))
-            hi = (slice(off, h), slice(None)) if axis == 0 else (slice(None), slice(off, w))
-            diff = tuple(np.subtract(p[hi], p[lo]) for p in points)  # p(x + off) - p(x)
-            shape = diff[0].shape
-            tmp = np.empty(shape, np.float32)
-            nlo = tuple(c[lo] for c in normals)
-            nhi = tuple(c[hi] for c in normals)
-            # normals disagree: n(x) . n(x + off) < min_convexity (the same for both directions)
-            concave_pair = _dot3(nlo, nhi, tmp=tmp) < conv  # type: ignore[arg-type]
-            # + direction: pixel x, neighbour x + off: d = (p(x+off) - p(x)) . n(x)
-            d = _dot3(diff, nlo, tmp=tmp)  # type: ignore[arg-type]
-            cut = (d > margin[lo]) | (d < neg_margin[lo]) | ((d > 0) & concave_pair)
-            cut &= valid[hi]
-            edge[lo] |= cut
-            # - direction: pixel x + off, neighbour x: d = (p(x) - p(x+off)) . n(x+off) = -e
-            e = _dot3(diff, nhi, out=d, tmp=tmp)  # type: ignore[arg-type]
-            cut = (e < neg_margin[hi]) | (e > margin[hi]) | ((e < 0) & concave_pair)
-            cut &= valid[lo]
-            edge[hi] |= cut
+        combos += [(off, axis) for axis in (0, 1) if off < (h if axis == 0 else w)]
+    if THREADS < 2 or len(combos) < 2:
+        return _edge_cuts(points, normals, valid, margin, neg_margin, conv, combos, edge)
+    other = _pool().submit(_edge_cuts, points, normals, valid, margin, neg_margin, conv, combos[1::2],
+                           np.zeros_like(edge))
+    _edge_cuts(points, normals, valid, margin, neg_margin, conv, combos[::2], edge)
+    edge |= other.result()
     return edge
+
+
+#: Threads of the edge tests (1: all on the calling thread). Two use both cores of a 2-core computer
+#: while the rest of the mapper waits on the segmentation; results are the same for any number.
+THREADS = min(2, os.cpu_count() or 1)
+_POOL: ThreadPoolExecutor | None = None
+
+
+def _pool() -> ThreadPoolExecutor:
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="depth-seg")
+    return _POOL
 
 
 def edge_map(points: np.ndarray, normals: np.ndarray, valid: np.ndarray, cfg: DepthSegmentationConfig,

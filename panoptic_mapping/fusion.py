@@ -83,15 +83,18 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
         # small objects are mostly edge pixels for the depth segmentation (a cup a few metres away):
         # a mask lying mostly outside every segment gets its valid-depth pixels as a segment
         valid = points[..., 2] > 0
-        in_seg = np.bincount(pan[geo > 0].ravel(), minlength=n_m)
-        on_edge = np.bincount(pan[(geo == 0) & valid].ravel(), minlength=n_m)
+        # one pass: per mask, its pixels inside segments (column 1) and its valid edge pixels (column 0)
+        cat = np.where(geo > 0, 1, np.where(valid, 0, 2)).astype(np.int64)
+        per_mask = np.bincount((pan * 3 + cat).ravel(), minlength=n_m * 3).reshape(n_m, 3)
+        in_seg, on_edge = per_mask[:, 1], per_mask[:, 0]
         rescue = (on_edge > in_seg) & (on_edge >= min_points)
         rescue[0] = False
         ms = np.flatnonzero(rescue)
         if ms.size:
             lut = np.zeros(n_m, np.int64)
             lut[ms] = n_g + np.arange(ms.size)
-            geo = np.where((geo == 0) & valid & (lut[pan] > 0), lut[pan], geo)
+            lut_pan = lut[pan]
+            geo = np.where((cat == 0) & (lut_pan > 0), lut_pan, geo)
             n_g += ms.size
             num_split += int(ms.size)
     if full and cfg.split and n_m > 1 and n_g > 1:
@@ -132,12 +135,12 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
     if full and cfg.cluster:
         num_out = _cluster_instances(geo, mask_of, masks, points, size_g, cfg)
     if full and cfg.absorb_edge_pixels:
-        geo, size_g = _absorb_edge_pixels(geo, pan, mask_of, points, n_g, cfg)
+        geo, size_g = _absorb_edge_pixels(geo, pan, mask_of, points, n_g, cfg, ov)
     present = size_g > 0
     present[0] = False
-    new_id = np.zeros(n_g, np.int64)
+    new_id = np.zeros(n_g, np.int32)
     new_id[present] = np.arange(1, int(present.sum()) + 1)
-    image = new_id[geo].astype(np.int32)
+    image = new_id[geo]
     keep = np.r_[0, np.flatnonzero(present)]
     mid = mask_of[keep]
     cls = np.where(mid > 0, masks.class_id[mid], BACKGROUND).astype(np.int32)
@@ -147,17 +150,19 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
 
 
 def _absorb_edge_pixels(geo: np.ndarray, pan: np.ndarray, mask_of: np.ndarray, points: np.ndarray, n_g: int,
-                        cfg: FusionConfig) -> tuple[np.ndarray, np.ndarray]:
+                        cfg: FusionConfig, ov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Depth-edge pixels inside a mask join the mask's largest segment (thin legs, silhouettes).
 
     The convexity segmentation leaves a band of edge pixels around every object and swallows thin
     parts whole; the mask says whom they belong to. Pixels farther than `absorb_depth_margin_m`
     in depth from the segment's range are left out (a mask bleeding onto far background).
+    `ov`: the (segment, mask) overlap of `geo` and `pan` when the caller has it (any number of mask
+    columns >= pan.max() + 1; the extra ones are empty).
     """
     n_m = int(pan.max()) + 1
     if n_m <= 1:
         return geo, np.bincount(geo.ravel(), minlength=n_g)
-    ov = _overlap(geo, pan, n_g, n_m)
+    ov = _overlap(geo, pan, n_g, n_m) if ov is None else ov[:, :n_m].copy()
     ov[:, 0] = 0
     labelled = np.zeros(n_g, bool)
     labelled[mask_of > 0] = True
@@ -171,22 +176,25 @@ def _absorb_edge_pixels(geo: np.ndarray, pan: np.ndarray, mask_of: np.ndarray, p
     host = np.argmax(ov, axis=0)
     host[ov.max(axis=0) == 0] = 0
     z = points[..., 2]
-    edge = (geo == 0) & (z > 0) & (host[pan] > 0)
+    edge = (geo == 0) & (z > 0) & (host > 0)[pan]
     if not np.any(edge):
         return geo, np.bincount(geo.ravel(), minlength=n_g)
-    from scipy import ndimage
-
-    index = np.arange(n_g)
-    zmin = np.asarray(ndimage.minimum(z, geo, index), np.float64)
-    zmax = np.asarray(ndimage.maximum(z, geo, index), np.float64)
-    empty = np.bincount(geo.ravel(), minlength=n_g) == 0
-    zmin[empty], zmax[empty] = np.inf, -np.inf
-    cand = host[pan[edge]]
-    ze = z[edge]
+    # depth range of the host segments only (exact min / max: the same values as a full per-label scan)
+    is_host = np.zeros(n_g, bool)
+    is_host[host[host > 0]] = True
+    on_host = is_host[geo]
+    g_host, z_host = geo[on_host], z[on_host]
+    zmin32 = np.full(n_g, np.inf, z.dtype)
+    zmax32 = np.full(n_g, -np.inf, z.dtype)
+    np.minimum.at(zmin32, g_host, z_host)
+    np.maximum.at(zmax32, g_host, z_host)
+    zmin, zmax = zmin32.astype(np.float64), zmax32.astype(np.float64)
+    ys, xs = np.nonzero(edge)
+    cand = host[pan[ys, xs]]
+    ze = z[ys, xs]
     margin = cfg.absorb_depth_margin_m
     ok = (ze >= zmin[cand] - margin) & (ze <= zmax[cand] + margin)
     geo = geo.copy()
-    ys, xs = np.nonzero(edge)
     geo[ys[ok], xs[ok]] = cand[ok]
     return geo, np.bincount(geo.ravel(), minlength=n_g)
 
@@ -213,7 +221,12 @@ def _cluster_instances(geo: np.ndarray, mask_of: np.ndarray, masks: PanopticMask
         return 0
     flat_geo = geo.ravel()
     flat_pts = points.reshape(-1, 3)
-    order = np.argsort(flat_geo, kind="stable")
+    # pixel indices of the segments clustered, grouped by segment in raster order (a stable sort of
+    # those pixels only: the same index lists as a stable sort of the whole image)
+    wanted = np.zeros(len(size_g), bool)
+    wanted[[g for segs in multi.values() for g in segs]] = True
+    pix = np.flatnonzero(wanted[flat_geo])
+    order = pix[np.argsort(flat_geo[pix], kind="stable")]
     bounds = np.searchsorted(flat_geo[order], np.arange(len(size_g) + 1))
     rng = np.random.default_rng(0)
     for segs in multi.values():

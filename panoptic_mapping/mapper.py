@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from panoptic_mapping.config import MapperConfig
-from panoptic_mapping.depth_segmentation import segment_depth
+from panoptic_mapping.depth_segmentation import segment_depth_planes
 from panoptic_mapping.fine_surface import FineSurfaceMap, assign_fine_vertices, fine_coverage
 from panoptic_mapping.fusion import BACKGROUND, FrameSegments, PanopticMasks, fuse
 from panoptic_mapping.image_ops import downsample_depth, downsample_labels
@@ -82,7 +82,7 @@ class PanopticMapper:
         self.classes = classes or {}
         self.tsdf = LabeledTSDF(self.config.tsdf)
         fine = self.config.fine_surface
-        self.fine = FineSurfaceMap(fine, self.config.tsdf.max_depth_m) if fine.enabled else None
+        self.fine = FineSurfaceMap(fine, self.config.tsdf) if fine.enabled else None
         self.counts = PanopticCounts()
         self.merge_votes: dict[tuple[int, int], int] = {}
         self.frames_integrated = 0
@@ -228,7 +228,8 @@ class PanopticMapper:
         intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
         area = 1.0 / (ds * ds)
         t = {}
-        geo, points, _normals = segment_depth(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
+        geo, planes, _normals = segment_depth_planes(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
+        points = cv2.merge(list(planes))
         t["depth_segmentation"] = time.perf_counter()
         if masks is not None:
             masks = PanopticMasks(downsample_labels(masks.labels, ds), masks.class_id, masks.is_thing, masks.score)
@@ -237,20 +238,20 @@ class PanopticMapper:
         min_pts = max(1, round(cfg.fusion.min_segment_points * area))
         segs = fuse(geo, masks, points, cfg.fusion, full=self.full, min_points=min_pts)
         t["fusion"] = time.perf_counter()
-        # (N, 3) @ (3, 3) in numpy is slow for this shape; cv2.transform is a tight C loop
-        world = cv2.transform(points.reshape(-1, 1, 3), pose[:3, :].astype(np.float32)).reshape(-1, 3)
-        segmented = bool(masks.labels.any())
+        # only every `stride`-th pixel (both directions) is associated and voted: transform just those
+        # ((N, 3) @ (3, 3) in numpy is slow for this shape; cv2.transform is a tight C loop)
         stride = max(1, cfg.association.pixel_stride)
-        grid = np.zeros(depth.shape, bool)
-        grid[::stride, ::stride] = True
-        sample = grid.ravel()
-        label_of_seg, new_labels, map_labels = self._associate(segs, world, sample, count_merges=segmented)
+        sampled = np.ascontiguousarray(points[::stride, ::stride]).reshape(-1, 1, 3)
+        world = cv2.transform(sampled, pose[:3, :].astype(np.float32)).reshape(-1, 3)
+        segmented = bool(masks.labels.any())
+        seg_flat = np.ascontiguousarray(segs.image[::stride, ::stride]).ravel()
+        label_of_seg, new_labels, map_labels = self._associate(segs, world, seg_flat, seg_flat.size / segs.image.size,
+                                                               count_merges=segmented)
         t["association"] = time.perf_counter()
         if segmented:
             self._vote(segs, label_of_seg)
-        seg_flat = segs.image.ravel()
         pix_labels = label_of_seg[seg_flat]
-        has = (pix_labels > 0) & sample
+        has = pix_labels > 0
         if not segmented:
             # frames without fresh masks fill unknown voxels but never fight labels the map holds
             # (a purely geometric segment may be under-segmented: floor + wall in one piece)
@@ -259,13 +260,15 @@ class PanopticMapper:
         self.tsdf.integrate_labels(world[has], pix_labels[has], lut)
         for label in np.unique(pix_labels[has]).tolist():
             self.counts.last_update[int(label)] = self.frames_integrated
+        t["label_integration"] = time.perf_counter()
         self.tsdf.integrate_depth(depth, intr.matrix, pose, in_range=True)
         t["integration"] = time.perf_counter()
         if self.fine is not None:
             small = self._small_label_lut(pix_labels)
             if small.any():
-                mask = self.fine.small_pixels(pix_labels.reshape(depth.shape), small)
-                self.fine.integrate(depth, mask, intr.matrix, pose)
+                full = label_of_seg[segs.image]
+                mask = self.fine.small_pixels(full, small)
+                self.fine.integrate(depth, mask, intr.matrix, pose, points, full, lut)
             t["fine_surface"] = time.perf_counter()
         self._integrated(frame)
         every = cfg.regularization.every_n_frames
@@ -294,17 +297,18 @@ class PanopticMapper:
             lut[label] = self._small_class(self.counts.segment_class(self.counts.canonical(label))[0])
         return lut
 
-    def _associate(self, segs: FrameSegments, world: np.ndarray, sample: np.ndarray,
+    def _associate(self, segs: FrameSegments, world: np.ndarray, flat: np.ndarray, sampled_share: float,
                    count_merges: bool) -> tuple[np.ndarray, int, np.ndarray]:
         """Global segment label of each frame segment (greedy by 3D overlap, Sec. 3.2).
 
-        Returns (label per segment id, number of new labels, canonical map label per pixel).
+        `flat`: the segment id of each sampled pixel, `world` its map-frame point, `sampled_share` the share of
+        the image's pixels sampled. Returns (label per segment id, number of new labels, canonical map
+        label per sampled pixel).
         """
         ac = self.config.association
         n = segs.count + 1
         label_of = np.zeros(n, np.int64)
-        flat = segs.image.ravel()
-        sel = (flat > 0) & sample
+        sel = flat > 0
         pixel_map_labels = np.zeros(flat.size, np.int64)
         if not np.any(sel):
             return label_of, 0, pixel_map_labels
@@ -328,7 +332,7 @@ class PanopticMapper:
                     for j in range(i + 1, len(labs)):
                         key = (labs[i], labs[j])
                         self.merge_votes[key] = self.merge_votes.get(key, 0) + 1
-        min_points = max(1, round(ac.min_overlap_points * float(sample.mean())))  # counts are of sampled pixels
+        min_points = max(1, round(ac.min_overlap_points * sampled_share))  # counts are of sampled pixels
         ok = (counts >= min_points) & (share >= ac.min_overlap_share)
         order = np.argsort(-counts[ok], kind="stable")
         taken: set[int] = set()
@@ -575,27 +579,34 @@ class PanopticMapper:
             e.num_voxels = len(used)
         if self.fine is not None:
             self._attach_fine_surfaces([e for e in ents if e.is_thing and self._small_class(e.class_id)],
-                                       v, ent_v, voted)
+                                       v, ent_v, voted, canon, lut)
 
     def _attach_fine_surfaces(self, ents: list[Entity], v: np.ndarray, ent_v: np.ndarray,
-                              voted: np.ndarray) -> None:
-        """Small things take the fine TSDF's surface (`panoptic_mapping.fine_surface`): each fine vertex
-        belongs to the entity of its nearest coarse vertex; an entity whose fine surface comes near less
-        than `min_coverage` of its voted coarse vertices (seen in too few labelled frames) keeps the
-        coarse one.
-        A fine vertex is voted (core, `Entity.core_vertices`) when its coarse vertex was."""
+                              voted: np.ndarray, canon: np.ndarray, lut: np.ndarray) -> None:
+        """Small things take the fine TSDF's surface (`panoptic_mapping.fine_surface`): a fine vertex with
+        a label belongs to the entity most of that label's coarse surface went to, the others to the
+        entity of their nearest coarse vertex (as its fringe: `Entity.core_vertices`); an entity whose
+        fine surface comes near less than `min_coverage` of its voted coarse vertices (seen in too few
+        labelled frames) keeps the coarse one."""
         if not ents or self.fine is None:
             return
         cfg = self.config.fine_surface
-        fv, ff = self.fine.extract_mesh(self.config.tsdf.mesh_weight_threshold)
+        fv, ff, fl = self.fine.extract_mesh()
         if len(ff) == 0:
             return
         # Open3D's order follows its hash map, which differs after a reload (as for the coarse mesh)
-        fv, ff, _ = canonical_mesh_order(fv, ff, np.zeros(len(fv), np.int32))
-        nearest = assign_fine_vertices(fv, v, cfg.assign_radius_voxels * self.config.tsdf.voxel_size_m)
-        hit = nearest >= 0
-        owner = np.where(hit, ent_v[np.maximum(nearest, 0)], 0)
-        core = hit & voted[np.maximum(nearest, 0)]
+        fv, ff, fl = canonical_mesh_order(fv, ff, fl)
+        # a labelled fine vertex goes where its label's coarse surface went (merges included) ...
+        label_entity = _majority_entity(canon[voted], ent_v[voted])
+        flab = lut[np.clip(fl, 0, len(lut) - 1)]
+        labelled = (flab > 0) & (flab < len(label_entity))
+        owner = np.zeros(len(fv), np.int64)
+        owner[labelled] = label_entity[flab[labelled]]
+        core = owner > 0
+        # ... the others to the entity of their nearest coarse vertex (not voted: the fringe)
+        rest = np.flatnonzero(owner == 0)
+        nearest = assign_fine_vertices(fv[rest], v, cfg.assign_radius_voxels * self.config.tsdf.voxel_size_m)
+        owner[rest] = np.where(nearest >= 0, ent_v[np.maximum(nearest, 0)], 0)
         of = owner[ff]
         same = (of[:, 0] == of[:, 1]) & (of[:, 1] == of[:, 2]) & (of[:, 0] > 0)
         ff, fid = ff[same], of[same, 0]
@@ -860,6 +871,21 @@ class MapSnapshot:
         write_bytes_atomic(folder / "map.npz", data)
         write_text_atomic(folder / "map.json", json.dumps(meta, indent=1))
         return folder / "map.npz"
+
+
+def _majority_entity(labels: np.ndarray, entities: np.ndarray) -> np.ndarray:
+    """Per label (index), the entity most of its vertices belong to (0: none)."""
+    keep = (labels > 0) & (entities > 0)
+    labels, entities = labels[keep].astype(np.int64), entities[keep].astype(np.int64)
+    if len(labels) == 0:
+        return np.zeros(1, np.int64)
+    pairs, counts = np.unique(np.stack([labels, entities], axis=1), axis=0, return_counts=True)
+    order = np.lexsort((-counts, pairs[:, 0]))  # by label, the most frequent entity first
+    pairs = pairs[order]
+    first = np.r_[True, pairs[1:, 0] != pairs[:-1, 0]]
+    out = np.zeros(int(labels.max()) + 1, np.int64)
+    out[pairs[first, 0]] = pairs[first, 1]
+    return out
 
 
 def canonical_mesh_order(vertices: np.ndarray, faces: np.ndarray,

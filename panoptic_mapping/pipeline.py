@@ -83,6 +83,9 @@ class MappingRun:
     segmentation_s: float = 0.0
     read_s: float = 0.0
     stage_ms: dict[str, float] = field(default_factory=dict)
+    #: Frames each stage ran on (depth segmentation, fusion, ...: the label frames only); `stage_ms`
+    #: is averaged over all frames, `stage_ms_per_call` (summary) over these.
+    stage_frames: dict[str, int] = field(default_factory=dict)
     skipped: dict[str, int] = field(default_factory=dict)
     #: Frames the mapper raised on (logged, skipped; the run goes on) and their first errors.
     failed_frames: int = 0
@@ -113,13 +116,15 @@ class MappingRun:
         d = {k: v for k, v in asdict(self).items() if k != "poses"}
         d["mapper_fps"] = round(self.mapper_fps, 2)
         d["stage_ms"] = {k: round(v / max(self.frames, 1), 2) for k, v in self.stage_ms.items()}
+        d["stage_ms_per_call"] = {k: round(v / max(self.stage_frames.get(k, 0), 1), 2)
+                                  for k, v in self.stage_ms.items()}
         for k in ("wall_s", "mapper_s", "segmentation_s", "read_s", "checkpoint_s"):
             d[k] = round(d[k], 3)
         return d
 
     #: Fields a checkpoint carries over to the resumed run (sums over the whole run).
-    _RESUMED = ("frames", "segmentation_calls", "failed_frames", "failures", "stage_ms", "mapper_s",
-                "segmentation_s", "read_s")
+    _RESUMED = ("frames", "segmentation_calls", "failed_frames", "failures", "stage_ms", "stage_frames",
+                "mapper_s", "segmentation_s", "read_s")
 
     def progress(self, source: str | Path, last_timestamp_ns: int | None) -> dict[str, Any]:
         """What a checkpoint records of this run (see `restore`)."""
@@ -396,6 +401,7 @@ def map_recording(
                 continue
             for k, v in stats.timings_ms.items():
                 run.stage_ms[k] = run.stage_ms.get(k, 0.0) + v
+                run.stage_frames[k] = run.stage_frames.get(k, 0) + 1
             run.frames += 1
             run.poses.append(mapper.local_pose(frame.pose))
             if refiner is not None and refine_n and read > window_reads and run.frames % refine_n == 0:

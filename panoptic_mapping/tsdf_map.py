@@ -160,19 +160,17 @@ class LabeledTSDF:
         flat, labels = flat[ok], labels[ok]
         if flat.size == 0:
             return flat
-        # one vote per voxel and frame: the majority label among the pixels hitting it
-        order = np.lexsort((labels, flat))
-        flat, labels = flat[order], labels[order]
-        pair_start = np.r_[True, (flat[1:] != flat[:-1]) | (labels[1:] != labels[:-1])]
-        pf, pl = flat[pair_start], labels[pair_start]
-        pc = np.diff(np.r_[np.flatnonzero(pair_start), flat.size])
+        # one vote per voxel and frame: the majority label among the pixels hitting it (ties: the
+        # largest label). One sort of a packed (voxel, label) key, then per-voxel maxima by reduceat.
+        span = int(labels.max()) + 1
+        keys, pc = np.unique(flat * span + labels, return_counts=True)
+        pf, pl = keys // span, keys % span
         vox_start = np.r_[True, pf[1:] != pf[:-1]]
+        starts = np.flatnonzero(vox_start)
         group = np.cumsum(vox_start) - 1
-        # index of the max-count pair within each voxel group
-        order2 = np.lexsort((pc, group))
-        last_of_group = np.r_[group[order2][1:] != group[order2][:-1], True]
-        best = order2[last_of_group]
-        vf, vl = pf[best], pl[best]
+        top = np.maximum.reduceat(pc, starts)
+        best = np.maximum.reduceat(np.where(pc == top[group], np.arange(pc.size), -1), starts)
+        vf, vl = pf[best], pl[best].astype(np.int32)
         lab = self.vbg.attribute("label").numpy().reshape(-1)
         conf = self.vbg.attribute("conf").numpy().reshape(-1)
         cur, c = lab[vf], conf[vf]

@@ -36,7 +36,10 @@ CATEGORIES: tuple[str, ...] = ("layout", "rigid", "articulated")
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 _CLASS_KEYS = {"id", "name", "category", "is_thing", "movable", "density", "coco"}
 #: Keys a class may leave out (default false).
-_OPTIONAL_CLASS_KEYS = {"round", "max_size_m", "flush"}
+_OPTIONAL_CLASS_KEYS = {"round", "max_size_m", "flush", "symmetry"}
+#: Values of a class's ``symmetry`` key: "round" (any yaw; order 0) or the order of its turn symmetry.
+SYMMETRY_ROUND = 0
+_SYMMETRY_VALUES = {"round": SYMMETRY_ROUND, 1: 1, 2: 2, 4: 4}
 _TOP_KEYS = {"version", "classes", "confusion_groups"}
 
 
@@ -62,6 +65,12 @@ class ClassInfo:
     #: Instances may lie flat in a layout plane (a screen on a wall): the faces they have in a floor or
     #: wall plane are theirs. Other things give such faces to the layout (scene_graph.geometric_layout).
     flush: bool = False
+    #: Every instance of the class looks the same after these turns about the vertical: 0 (round: any
+    #: yaw, a bottle), 2 (a half turn), 4 (a quarter turn), 1 (none: it has a front); None when the
+    #: class does not say and each model's own geometry decides (a cup with a handle has a front, one
+    #: without is round). Stage 4 tries only the orientations the symmetry leaves distinct, and the
+    #: evaluation scores a yaw modulo it.
+    symmetry: int | None = None
 
     @property
     def is_layout(self) -> bool:
@@ -166,6 +175,9 @@ def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
     if max_size is not None and (isinstance(max_size, bool) or not isinstance(max_size, (int, float))
                                  or not math.isfinite(max_size) or max_size <= 0):
         raise _fail(path, where, f"max_size_m must be a positive number, got {max_size!r}")
+    symmetry = raw.get("symmetry")
+    if symmetry is not None and (isinstance(symmetry, bool) or symmetry not in _SYMMETRY_VALUES):
+        raise _fail(path, where, f"symmetry must be round, 1, 2 or 4, got {symmetry!r}")
     if raw["category"] != "layout" and density is None:
         raise _fail(path, where, "object classes need a density")
     if raw["category"] == "layout" and raw["movable"]:
@@ -184,6 +196,7 @@ def _parse_class(path: Path, index: int, raw: Any) -> ClassInfo:
         round=raw.get("round", False),
         max_size_m=float(max_size) if max_size is not None else None,
         flush=raw.get("flush", False),
+        symmetry=_SYMMETRY_VALUES[symmetry] if symmetry is not None else None,
     )
 
 

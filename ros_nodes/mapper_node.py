@@ -59,7 +59,8 @@ from pathlib import Path
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
-from scene_recon_interfaces.msg import PanopticEntityArray
+from rclpy.time import Time
+from scene_recon_interfaces.msg import ContactGraph, PanopticEntityArray
 from scene_recon_interfaces.srv import ExtractEntities, LoadMap, ResetMap, SaveMap, SegmentImage
 from sensor_msgs.msg import CameraInfo, Image, Imu
 from std_msgs.msg import String
@@ -97,7 +98,7 @@ from ros_nodes.conversions import (
 )
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, map_markers
 from ros_nodes.parameters import declare_config, declare_config_file
-from ros_nodes.qos import ENTITIES, PROGRESS_TOPIC, RECORDING_DEPTH, STATUS, TF_STATIC
+from ros_nodes.qos import ENTITIES, LATCHED, PROGRESS_TOPIC, RECORDING_DEPTH, STATUS, TF_STATIC
 from ros_nodes.runner import run_node, steady_timer
 from ros_nodes.sensor_subscription import SensorSubscription
 from ros_nodes.tf_listener import TFListener
@@ -173,6 +174,12 @@ class MapperNodeConfig(Settings):
                              "rotates each reading into the map frame; the verdict goes to the map's gravity "
                              "record as `imu`); empty: no IMU")
     imu_samples: int = setting(0, min=0, doc="readings the IMU check averages (0: gravity.imu_samples)")
+    #: "Settled" needs the consumers too: on a loaded machine the contact graph took 4-5 s to turn the
+    #: mapper's last entities into a graph, and a runner that saw the mapper idle (everything published) and
+    #: the scene quiet for 3 s exported the scene of the graph before (2 walls of 4 missing, 2 runs of 2).
+    graph_topic: str = setting("contact_graph", doc="ContactGraph built from these entities (its header carries "
+                               "their stamp): while it has a publisher, mapper_status reports graph_behind (and "
+                               "unpublished_changes) until a graph of the newest entities came; empty: not watched")
 
 
 class MapperNode(Node):
@@ -273,6 +280,14 @@ class MapperNode(Node):
         self._published_revision: dict[int, tuple[str, int]] = {}  # id -> (mesh digest, revision published)
         # entity messages by (id, revision, with mesh): unchanged entities are not converted again
         self._msg_cache: dict[tuple[int, int, bool], object] = {}
+        # the stamp of the newest entities published (strictly increasing: on sim time the clock stands still
+        # once a recording has ended) and of the entities the newest contact graph was built from
+        self._published_stamp_ns = 0
+        self._graph_stamp_ns = -1
+        self.graph_topic = settings.graph_topic
+        if self.graph_topic:
+            self.create_subscription(ContactGraph, self.graph_topic, self._on_graph, LATCHED,
+                                     callback_group=MutuallyExclusiveCallbackGroup())
         steady_timer(self, 0.01, self._process, self.map_group)
         # publishing shares the map group with integration: run beside it (its own group) the mesh-to-message
         # conversion competed for the interpreter with integration and the services, and service answers
@@ -712,7 +727,10 @@ class MapperNode(Node):
         Only the publisher (one thread) updates the conversion cache and the published revisions."""
         msg = PanopticEntityArray()
         msg.header.frame_id = self.output_frame
-        msg.header.stamp = self.get_clock().now().to_msg()
+        stamp_ns = self.get_clock().now().nanoseconds
+        if publishing:
+            stamp_ns = max(stamp_ns, self._published_stamp_ns + 1)
+        msg.header.stamp = Time(nanoseconds=stamp_ns).to_msg()
         old, cache = self._msg_cache, {}
         revisions: dict[int, tuple[str, int]] = {}
         for e in ents:
@@ -759,18 +777,31 @@ class MapperNode(Node):
             return
         self._publish_failed = False
         self.pub_entities.publish(msg)
+        self._published_stamp_ns = _stamp_ns(msg.header.stamp)
         self.counters["publications"] += 1
         self._next_publish = t0 + (time.monotonic() - t0) / self.PUBLISH_DUTY
         self.pub_markers.publish(map_markers(ents, self.output_frame, msg.header.stamp))
 
+    def _on_graph(self, msg: ContactGraph) -> None:
+        self._graph_stamp_ns = _stamp_ns(msg.header.stamp)
+
+    def graph_behind(self) -> bool:
+        """A contact graph runs (`graph_topic` has a publisher) and has not yet published the graph of the
+        newest entities published here (the graph's header carries the stamp of the entities it was built from)."""
+        return bool(self.graph_topic and self._published_stamp_ns and self._graph_stamp_ns != self._published_stamp_ns
+                    and self.count_publishers(self.graph_topic) > 0)
+
     def status(self) -> dict:
         """What `mapper_status` and the status log line report."""
         cp = self.checkpointer
+        behind = self.graph_behind()
         return {"frames_integrated": self.mapper.frames_integrated, "keyframes": self.mapper.keyframes,
                 "dropped_frames": self.counters["dropped_backlog"], "queue": self._queued(),
                 "held_for_gravity": len(self._held), "frame": self.output_frame,
-                # idle = nothing queued, no keyframe waiting for labels, every change published
-                "pending_segmentations": len(self.pending), "unpublished_changes": bool(self._changed),
+                # idle = nothing queued, no keyframe waiting for labels, every change published and, where a
+                # contact graph runs, in its newest graph
+                "pending_segmentations": len(self.pending), "unpublished_changes": bool(self._changed) or behind,
+                "graph_behind": behind,
                 "entity_publications": self.counters["publications"],
                 "counters": dict(self.counters), "checkpoints": cp.saved if cp else 0,
                 "last_checkpoint": str(cp.last_path) if cp and cp.last_path else "",
@@ -995,6 +1026,10 @@ def _translation(offset: np.ndarray) -> np.ndarray:
     t = np.eye(4)
     t[:3, 3] = offset
     return t
+
+
+def _stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def _mesh_digest(e) -> str:

@@ -12,10 +12,12 @@ import tempfile
 from pathlib import Path
 
 from scene_recon import __version__
-from scene_recon.commands import COMMANDS
+from scene_recon.commands import COMMAND_NAMES, command_module
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The whole command line; with ``command`` (a subcommand name) only that subcommand is loaded and
+    added (its module's imports are all a command line pays for; `--help` of the program lists all)."""
     parser = argparse.ArgumentParser(
         prog="scene-recon",
         description="Turn an RGB-D stream into a functionally equivalent, interactive scene "
@@ -26,17 +28,25 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
     parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in COMMANDS:
-        module.add_parser(sub)
+    for name in (command,) if command in COMMAND_NAMES else COMMAND_NAMES:
+        command_module(name).add_parser(sub)
     return parser
+
+
+def _named_command(argv: list[str]) -> str | None:
+    """The subcommand a command line names: its first word that is not an option (the program's own
+    options take no value), when that is a subcommand; else ``None`` (the full parser decides)."""
+    word = next((a for a in argv if not a.startswith("-")), None)
+    return word if word in COMMAND_NAMES else None
 
 
 def main(argv: list[str] | None = None) -> int:
     from recon_core.ros_env import ensure_ros_environment
 
     ensure_ros_environment()
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(_named_command(words))
+    args = parser.parse_args(words)
     level = logging.WARNING if args.verbose == 0 else logging.INFO if args.verbose == 1 else logging.DEBUG
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     from recon_core.errors import SceneReconError

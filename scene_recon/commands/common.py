@@ -6,15 +6,16 @@ import argparse
 import json
 import math
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from panoptic_mapping.dataio import DataInputConfig
-from panoptic_mapping.dataio.intrinsics import parse_intrinsics_option
 from recon_core.config import CONFIG_DIR, Preset, load_config, load_preset, preset_names, preset_overrides
 
 #: (option, dest, config key) of the data options that take a value (forwarded by `run` to `map`).
+if TYPE_CHECKING:  # the data input is imported by the commands that read RGB-D data only (0.25 s)
+    from panoptic_mapping.dataio import DataInputConfig
+
 _VALUE_OPTIONS = (
     ("--data-config", "data_config", ""), ("--color-topic", "color_topic", "topics.color"),
     ("--depth-topic", "depth_topic", "topics.depth"),
@@ -62,6 +63,9 @@ def preset_argv(args: argparse.Namespace) -> list[str]:
 
 
 def data_config_from_args(args: argparse.Namespace) -> DataInputConfig:
+    from panoptic_mapping.dataio import DataInputConfig
+    from panoptic_mapping.dataio.intrinsics import parse_intrinsics_option
+
     overrides: dict[str, Any] = preset_overrides(preset_from_args(args), "data")
     for _opt, dest, key in _VALUE_OPTIONS:
         value = getattr(args, dest, None)

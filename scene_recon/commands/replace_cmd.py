@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import hashlib
 import json
 import logging
+import math
+import threading
 import time
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from scene_recon.commands.common import add_preset_option, preset_from_args, print_json
 
@@ -43,17 +45,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from cad_replacement.cad.library import CadLibrary
-    from cad_replacement.export import export_scene
-    from cad_replacement.physical_check import PhysicalCheck
+    # What a user waits for, in order: the fork server starts first (it imports the CAD code, 1.5-2 s,
+    # while this process imports its own and reads the graph), unless a previous run of this very input
+    # left every result in the store (then no worker is needed: the fits are read back).
     from cad_replacement.replace_config import CadReplacementConfig
-    from cad_replacement.replacer import CadReplacer
-    from cad_replacement.scene_model import scene_record
+    from cad_replacement.result_store import default_store_dir
+    from cad_replacement.workers import prestart_fork_server, resolve_workers
     from recon_core.config import build_config, preset_overrides
-    from recon_core.contact_graph import ContactGraph
-    from recon_core.entity import load_entities
     from recon_core.errors import InputError
-    from recon_core.io import write_text_atomic
 
     graph_dir = Path(args.graph)
     graph_file = graph_dir / "contact_graph.json" if graph_dir.is_dir() else graph_dir
@@ -63,17 +62,44 @@ def run(args: argparse.Namespace) -> int:
     if not (nodes_dir / "entities.json").is_file():
         raise InputError(f"{nodes_dir}/entities.json not found: re-run `scene-recon graph` (it writes the node "
                          "geometry CAD replacement aligns to)")
+    cad_cfg = build_config(CadReplacementConfig, {},
+                           preset_overrides(preset_from_args(args), "cad", {"method": args.method}))
+    n_workers = resolve_workers(cad_cfg.workers)
+    marker = default_store_dir() / "inputs" / _input_fingerprint(graph_file, nodes_dir, cad_cfg, args)
+    if n_workers > 1 and not marker.is_file():
+        prestart_fork_server()
+
+    from cad_replacement.cad.library import CadLibrary
+    from cad_replacement.physical_check import PhysicalCheck
+    from cad_replacement.replacer import CadReplacer
+    from cad_replacement.workers import ReplaceWorkers
+    from recon_core.contact_graph import ContactGraph
+    from recon_core.entity import load_entities
+
     graph = ContactGraph.load(graph_file)
     entities = {e.id: e for e in load_entities(nodes_dir)}
     library = CadLibrary(root=args.cad_dir, seeds_per_class=args.seeds_per_class)
     check = PhysicalCheck(method=args.method)
-    cad_cfg = build_config(CadReplacementConfig, {},
-                           preset_overrides(preset_from_args(args), "cad", {"method": args.method}))
+    # results stored by earlier runs (same observation, settings, library and code) are read back
+    workers = ReplaceWorkers(library, n_workers, store="library") if n_workers > 1 else None
     t0 = time.perf_counter()
-    with CadReplacer(library, cad_cfg, physical_check=check) as replacer:  # stops its worker processes
-        result = replacer.replace(graph, entities)
+    try:
+        with CadReplacer(library, cad_cfg, physical_check=check, workers=workers) as replacer:
+            result = replacer.replace(graph, entities)
+    finally:
+        if workers is not None:
+            workers.close()
+    if workers is not None and workers.store is not None and not workers.failed:
+        _write_marker(marker)
+    from cad_replacement.export import export_scene
+    from cad_replacement.scene_model import scene_record
+    from recon_core.io import write_text_atomic
+
     out = Path(args.out)
-    exported = export_scene(result.scene, out)
+    # the picture is drawn (numpy and Open3D ray casting, mostly outside the interpreter lock) while the
+    # URDF, MJCF and meshes are written: it needs scene.glb only, which the export writes first
+    picture_job = _PictureJob(graph, entities, out)
+    exported = export_scene(result.scene, out, on_glb=picture_job.start)
     urdf = exported.urdf
     physics = check.last_report
     summary = {"scene": result.scene.name, "method": args.method, "objects": len(result.scene),
@@ -93,14 +119,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"no object of {graph_file} could be replaced: the graph has no object nodes with "
                          "geometry (check `scene-recon graph` output and its nodes/ folder)")
     graph.save(out / "contact_graph.json")  # the input, so the folder can be scored on its own
-    picture = _before_after(graph, entities, out)
+    picture = picture_job.result()
     if args.json:
         print_json(summary)
         return 0
     print(f"{'object':20s} {'class':10s} {'kind':14s} {'CAD model':34s} {'AE mm':>6s}  why")
     for r in result.records:
         ae = next((c["alignment_error"] for c in r.candidates if c["cad_id"] == r.cad_id), None)
-        ae_txt = f"{1000 * ae:6.1f}" if ae is not None and np.isfinite(ae) else "     -"
+        ae_txt = f"{1000 * ae:6.1f}" if ae is not None and math.isfinite(ae) else "     -"
         # the stage-4 gate's word: why an object stays its observed mesh, or which class it replaced
         why = r.reason or ""
         if r.substituted_from:
@@ -115,6 +141,53 @@ def run(args: argparse.Namespace) -> int:
           f"{exported.mjcf.name}, {exported.joint_states.name}, replacement.json"
           + (f", {exported.glb.name}" if exported.glb else "") + (f", {picture.name}" if picture else ""))
     return 0
+
+
+def _input_fingerprint(graph_file: Path, nodes_dir: Path, config: Any, args: argparse.Namespace) -> str:
+    """Names this input (graph and node files, settings, library options): a run that finds its marker
+    expects the result store to answer and starts no fork server up front (a guess, never a result)."""
+    h = hashlib.sha256(repr((config, args.method, args.seeds_per_class, args.cad_dir)).encode())
+    for path in (graph_file, nodes_dir / "entities.json"):
+        h.update(path.read_bytes())
+    for path in sorted(nodes_dir.rglob("*")):
+        if path.is_file():
+            st = path.stat()
+            h.update(f"{path.relative_to(nodes_dir)}\0{st.st_size}\0{st.st_mtime_ns}\0".encode())
+    return h.hexdigest()
+
+
+def _write_marker(marker: Path) -> None:
+    with contextlib.suppress(OSError):  # a hint for the next run only
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.touch()
+
+
+class _PictureJob:
+    """``_before_after`` in a thread, started when scene.glb is written; ``result`` waits for it."""
+
+    def __init__(self, graph: Any, entities: dict[int, Any], out: Path) -> None:
+        self._args = (graph, entities, out)
+        self._thread: threading.Thread | None = None
+        self._path: Path | None = None
+        self._error: BaseException | None = None
+
+    def _run(self) -> None:
+        try:
+            self._path = _before_after(*self._args)
+        except BaseException as exc:  # handed to the caller by ``result``
+            self._error = exc
+
+    def start(self, _glb: Path | None = None) -> None:
+        self._thread = threading.Thread(target=self._run, name="before-after-picture", daemon=True)
+        self._thread.start()
+
+    def result(self) -> Path | None:
+        if self._thread is None:  # no scene.glb was written: nothing to draw
+            return None
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._path
 
 
 def _before_after(graph: Any, entities: dict[int, Any], out: Path) -> Path | None:

@@ -119,7 +119,9 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
     DepthSegmentationConfig(min_convexity=0.9, max_discontinuity_ratio=0.03, min_segment_pixels=20),
 ])
 @pytest.mark.parametrize("area", [1.0, 0.25])
-def test_segments_points_and_normals_are_bit_identical_to_the_reference(depths, cfg, area):
+@pytest.mark.parametrize("threads", [1, 2])
+def test_segments_points_and_normals_are_bit_identical_to_the_reference(depths, cfg, area, threads, monkeypatch):
+    monkeypatch.setattr(ds, "THREADS", threads)  # 2: normals by row halves and edge tests on two threads
     segmented = 0
     for d in depths:
         ref = _ref_segment(d, INTR, cfg, area)

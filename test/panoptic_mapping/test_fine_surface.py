@@ -98,15 +98,18 @@ def test_assignment_and_coverage_are_bounded_by_the_radius():
 
 
 def test_only_small_things_pixels_are_fused(renderer):
-    from panoptic_mapping.config import FineSurfaceConfig
+    from panoptic_mapping.config import FineSurfaceConfig, TSDFConfig
 
-    fine = FineSurfaceMap(FineSurfaceConfig(dilate_px=0), 4.0)
+    fine = FineSurfaceMap(FineSurfaceConfig(dilate_px=0), TSDFConfig())
     labels = np.zeros((4, 5), np.int64)
     labels[1, 1], labels[2, 3] = 7, 9
     small = np.zeros(10, bool)
     small[7] = True
     mask = fine.small_pixels(labels, small)
     assert mask.sum() == 1 and mask[1, 1]
-    assert fine.integrate(np.ones((4, 5), np.float32), np.zeros((4, 5), bool), INTR.matrix, np.eye(4)) == 0
+    none = np.zeros((4, 5), bool)
+    assert fine.integrate(np.ones((4, 5), np.float32), none, INTR.matrix, np.eye(4), np.ones((4, 5, 3)), labels,
+                          np.arange(10)) == 0
+    assert fine.num_blocks == 0
 
 

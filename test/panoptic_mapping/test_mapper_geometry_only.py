@@ -66,7 +66,7 @@ def _forbid_label_work(monkeypatch) -> None:
     def boom(*_a, **_k):
         raise AssertionError("label work on the geometry-only path")
 
-    monkeypatch.setattr(mapper_module, "segment_depth", boom)
+    monkeypatch.setattr(mapper_module, "segment_depth_planes", boom)
     monkeypatch.setattr(mapper_module, "fuse", boom)
     monkeypatch.setattr(PanopticMapper, "_associate", boom)
     monkeypatch.setattr(PanopticMapper, "_vote", boom)

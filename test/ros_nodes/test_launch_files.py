@@ -4,8 +4,8 @@ in an ament prefix laid out as `colcon build` installs it (share/scene_recon/{pa
 the node executables in lib/scene_recon). `ros2 launch scene_recon <file> --show-args` loads each file;
 `mapping.launch.py out:=DIR` starts a mapper whose data root is DIR/map (not the current directory).
 
-Skipped where the upstream sources are absent. Building the prefix takes 1-2 min: set
-SCENE_RECON_ROS2_PREFIX to a folder built before (`build_prefix.sh VENV DEST`, DEST) to reuse it."""
+Skipped where the upstream sources are absent. The prefix is built once per session (conftest.py,
+`ros2_upstream_env`; 1-2 min): set SCENE_RECON_ROS2_PREFIX to a folder built before to reuse it."""
 
 from __future__ import annotations
 
@@ -25,23 +25,14 @@ from recon_core.ros_graph import BAG_ARGUMENTS, LIVE_ARGUMENTS
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[2]
-UPSTREAM = next((p for p in (ROOT.parent / "shared" / "ros2-upstream", Path("/work/shared/ros2-upstream"))
-                 if (p / "build_prefix.sh").is_file()), None)
 LAUNCH_FILES = sorted(p.name for p in (ROOT / "launch").glob("*.launch.py"))
 EXECUTABLES = ("rgbd_player", "segmentation_service", "panoptic_mapper", "contact_graph_node", "cad_replacer")
 
 
 @pytest.fixture(scope="module")
-def ros2_env(tmp_path_factory) -> dict[str, str]:
-    """Environment of a shell that sourced the upstream prefix and this package's install prefix."""
-    if UPSTREAM is None:
-        pytest.skip("../shared/ros2-upstream (upstream launch, launch_ros, ros2cli sources) is absent")
+def ros2_env(ros2_upstream_env, tmp_path_factory) -> dict[str, str]:
+    """Environment of a shell that sourced the upstream prefix (conftest) and this package's install prefix."""
     venv = Path(sys.prefix)
-    dest = Path(os.environ.get("SCENE_RECON_ROS2_PREFIX") or tmp_path_factory.mktemp("ros2_upstream"))
-    build = subprocess.run(["bash", str(UPSTREAM / "build_prefix.sh"), str(venv), str(dest)],
-                           capture_output=True, text=True, timeout=900)
-    if build.returncode != 0:
-        pytest.fail(f"build_prefix.sh failed: {build.stdout[-2000:]}{build.stderr[-2000:]}")
     # this package, as colcon's ament_python install lays it out
     pkg = tmp_path_factory.mktemp("scene_recon_prefix")
     (pkg / "share" / "ament_index" / "resource_index" / "packages").mkdir(parents=True)
@@ -52,8 +43,7 @@ def ros2_env(tmp_path_factory) -> dict[str, str]:
     (pkg / "lib" / "scene_recon").mkdir(parents=True)
     for exe in EXECUTABLES:
         (pkg / "lib" / "scene_recon" / exe).symlink_to(venv / "bin" / exe)
-    sourced = subprocess.run(["bash", "-c", f". {dest / 'env.sh'} && env -0"], capture_output=True, check=True)
-    env = dict(item.split("=", 1) for item in sourced.stdout.decode().split("\0") if "=" in item)
+    env = dict(ros2_upstream_env)
     env["AMENT_PREFIX_PATH"] = f"{pkg}:{env['AMENT_PREFIX_PATH']}"
     env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id("spare1")))
     return env

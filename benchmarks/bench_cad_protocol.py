@@ -1,0 +1,141 @@
+"""Stage 4 from ground-truth entities over the robustness protocol's scenes and more (issue 23, item 1).
+
+For each scene (the four suite scenes, the protocol's generated scenes ``gen-*``, and further generated
+rooms ``seed:<seed>:<objects>`` built on the fly, no rendering needed: ground-truth entities carry
+their complete meshes) the contact graph of the exact entities goes through ``CadReplacer`` with the
+physical check, in up to three settings on the same graph:
+
+  in-library   our method, a library holding the scene's own models (plus 10 seeds per class)
+  unseen       our method, the default library (10 seeds per class; the scenes' seeds are never in it)
+  paper        the paper's method on the unseen library
+
+Per scene and setting: pose success, front flips, hinge axes within 10 deg and joint values within
+tolerance over the articulated parts' joints, and the per-object failures (yaw error, size error,
+chosen model) so a regression names its object. Physics is not simulated here (``bench_cad.py`` does).
+
+    .venv/bin/python benchmarks/bench_cad_protocol.py [--scenes bench-small gen-4242 seed:11:20 ...]
+        [--settings in-library unseen paper] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from cad_replacement.cad.library import CadLibrary
+from cad_replacement.physical_check import PhysicalCheck
+from cad_replacement.replace_config import CadReplacementConfig
+from cad_replacement.replacer import CadReplacer
+from cad_replacement.seeded_library import SeededLibrary
+from scene_graph.builder import ContactGraphBuilder
+from scene_graph.config import load_scene_graph_config
+from scene_recon.bench.robustness import GENERATED
+from scene_recon.evaluation.scene_eval import evaluate_scene
+from scene_recon.synthetic.scene import GroundTruthScene, build_scene, entities_from_ground_truth
+from scene_recon.synthetic.suite import SUITE, scene_paths
+
+#: The protocol's scenes (suite + generated) and, by default, four more generated rooms (20 objects each).
+DEFAULT_SCENES = (*SUITE, *GENERATED, "seed:11:20", "seed:23:20", "seed:31:20", "seed:47:20")
+
+
+def load_scene(name: str) -> GroundTruthScene:
+    """Ground truth of a suite / protocol scene (cached recording) or of ``seed:<seed>:<objects>``."""
+    if name.startswith("seed:"):
+        _, seed, objects = name.split(":")
+        return build_scene(int(objects), int(seed), name=name.replace(":", "-"))
+    definition = SUITE.get(name) or GENERATED.get(name)
+    if definition is None:
+        raise SystemExit(f"unknown scene {name!r}")
+    _bag, gt_dir = scene_paths(definition, progress=False)
+    return GroundTruthScene.load(gt_dir)
+
+
+def run(gt: GroundTruthScene, library: CadLibrary, method: str) -> dict[str, Any]:
+    builder = ContactGraphBuilder(load_scene_graph_config())
+    builder.update(entities_from_ground_truth(gt))
+    graph, nodes = builder.build(name=gt.name), builder.node_entities()
+    config = CadReplacementConfig(method=method, workers=1)
+    t0 = time.perf_counter()
+    with CadReplacer(library, config, physical_check=PhysicalCheck(method=method)) as replacer:
+        result = replacer.replace(graph, nodes)
+    seconds = time.perf_counter() - t0
+    with contextlib.redirect_stdout(io.StringIO()):
+        figures = evaluate_scene(result.scene, {r.name: r.to_dict() for r in result.records}, gt, library, None)
+    cad = sum(1 for r in result.records if r.kind == "cad")
+    per = figures["per_object"]
+    joints = sum(o["joints_total"] for o in per)
+    return {
+        "objects": len(per), "ground_truth_objects": figures["ground_truth_objects"],
+        "pose_success": figures["objects"].get("pose_success"),
+        "front_flips": sum(1 for o in per if o["front_flip"]),
+        "joints": joints, "axis_ok": sum(o["axis_ok"] for o in per), "value_ok": sum(o["value_ok"] for o in per),
+        "seconds": seconds, "per_object_s": seconds / max(cad, 1),
+        "failures": [{k: o[k] for k in ("name", "class_name", "chosen", "symmetry", "translation_error",
+                                        "yaw_error_deg", "size_error", "front_flip", "joints_total", "axis_ok",
+                                        "value_ok")}
+                     for o in per if not o["pose_success"] or o["axis_ok"] < o["joints_total"]
+                     or o["value_ok"] < o["joints_total"]],
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenes", nargs="+", default=list(DEFAULT_SCENES))
+    parser.add_argument("--settings", nargs="+", default=["in-library", "unseen", "paper"],
+                        choices=["in-library", "unseen", "paper"])
+    parser.add_argument("--json", type=Path, help="write every row here")
+    parser.add_argument("--quiet", action="store_true", help="no per-object failure lines")
+    args = parser.parse_args(argv)
+    unseen = CadLibrary(seeds_per_class=10)
+    rows: list[dict[str, Any]] = []
+    for name in args.scenes:
+        gt = load_scene(name)
+        seeds: dict[str, list[int]] = {}
+        for e in gt.entities:
+            if e.model_seed is not None:
+                seeds.setdefault(e.class_name, []).append(int(e.model_seed))
+        for setting in args.settings:
+            library = SeededLibrary(extra_seeds=seeds) if setting == "in-library" else unseen
+            row = run(gt, library, "paper" if setting == "paper" else "ours")
+            row.update(scene=name, setting=setting)
+            rows.append(row)
+            axis = f"{row['axis_ok']}/{row['joints']}"
+            print(f"{name:14s} {setting:10s} pose {100 * (row['pose_success'] or 0):5.1f} % "
+                  f"({row['objects']}/{row['ground_truth_objects']} matched) flips {row['front_flips']} "
+                  f"hinge axes {axis} values {row['value_ok']}/{row['joints']} "
+                  f"{row['per_object_s'] * 1000:.0f} ms/object", flush=True)
+            if not args.quiet:
+                for f in row["failures"]:
+                    print(f"    {f['name']:22s} {f['chosen']:52s} t {100 * (f['translation_error'] or 0):5.1f} cm "
+                          f"yaw {f['yaw_error_deg'] or 0:5.1f} size {f['size_error'] or 0:.2f} sym {f['symmetry']} "
+                          f"flip {f['front_flip']} axes {f['axis_ok']}/{f['joints_total']} "
+                          f"values {f['value_ok']}/{f['joints_total']}", flush=True)
+    print("\nsetting     pose success mean / min   flips  hinge axes  joint values  ms/object")
+    for setting in args.settings:
+        sel = [r for r in rows if r["setting"] == setting]
+        if not sel:
+            continue
+        pose = [r["pose_success"] or 0.0 for r in sel]
+        joints = sum(r["joints"] for r in sel)
+        print(f"{setting:10s}  {100 * np.mean(pose):5.1f} % / {100 * np.min(pose):5.1f} %   "
+              f"{sum(r['front_flips'] for r in sel):5d}  "
+              f"{100 * sum(r['axis_ok'] for r in sel) / max(joints, 1):5.1f} %     "
+              f"{100 * sum(r['value_ok'] for r in sel) / max(joints, 1):5.1f} %      "
+              f"{1000 * np.mean([r['per_object_s'] for r in sel]):.0f}")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
