@@ -51,8 +51,9 @@ CONFIGS = {
 }
 
 
-def open3d_integration_s(bag: Path, frames: int, downsample: int, voxel: float) -> float:
-    """Depth-only TSDF integration of the same frames with Open3D's VoxelBlockGrid (timed part only)."""
+def open3d_integration_s(bag: Path, frames: int, downsample: int, voxel: float, cpu: list | None = None) -> float:
+    """Depth-only TSDF integration of the same frames with Open3D's VoxelBlockGrid (timed part only);
+    `cpu`: a list that receives each frame's process CPU seconds."""
     import open3d as o3d
     import open3d.core as o3c
 
@@ -68,13 +69,15 @@ def open3d_integration_s(bag: Path, frames: int, downsample: int, voxel: float) 
                 break
             depth = downsample_depth(f.depth, downsample)
             intr = f.intrinsics if downsample == 1 else f.intrinsics.scaled(1 / downsample)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             dt = o3d.t.geometry.Image(o3c.Tensor(depth))
             k = o3c.Tensor(intr.matrix)
             e = o3c.Tensor(np.linalg.inv(f.pose))
             blocks = vbg.compute_unique_block_coordinates(dt, k, e, 1.0, 4.0, 4.0)
             vbg.integrate(blocks, dt, k, e, 1.0, 4.0, 4.0)
             total += time.perf_counter() - t0
+            if cpu is not None:
+                cpu.append(time.process_time() - c0)
     return total
 
 
@@ -132,14 +135,25 @@ def cost_model(bag: Path, frames: int, noise: str = "default", seed: int = 0) ->
 
     cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml")
     steps: dict[str, list[float]] = {}
+    cpu = {"full": 0.0, "geometry_only": 0.0}
 
     class Recorder(PanopticMapper):
-        """Records each frame's step timings (older checkouts have no per-step frame counts)."""
+        """Records each frame's step timings (older checkouts have no per-step frame counts) and the
+        process CPU time of each frame (all threads: on a shared machine far steadier than wall time)."""
 
         def integrate(self, frame, masks):  # type: ignore[no-untyped-def]
+            c0 = time.process_time()
             stats = super().integrate(frame, masks)
+            cpu["full"] += time.process_time() - c0
             for k, v in stats.timings_ms.items():
                 steps.setdefault(k, []).append(v)
+            return stats
+
+    class GeometryRecorder(PanopticMapper):
+        def integrate_geometry(self, frame):  # type: ignore[no-untyped-def]
+            c0 = time.process_time()
+            stats = super().integrate_geometry(frame)
+            cpu["geometry_only"] += time.process_time() - c0
             return stats
 
     seg_cfg = SegmentationConfig(backend="oracle")
@@ -148,8 +162,10 @@ def cost_model(bag: Path, frames: int, noise: str = "default", seed: int = 0) ->
     data.topics.labels = "/ground_truth/panoptic_labels"
     _mapper, run = map_recording(bag, make_segmenter(seg_cfg), cfg, data, progress=False,
                                  mapper=Recorder(cfg, class_metas()))
-    _geo_mapper, geo = map_recording(bag, None, cfg, DataInputConfig(max_frames=frames), progress=False)
-    o3d_s = open3d_integration_s(bag, frames, cfg.downsample, cfg.tsdf.voxel_size_m)
+    _geo_mapper, geo = map_recording(bag, None, cfg, DataInputConfig(max_frames=frames), progress=False,
+                                     mapper=GeometryRecorder(cfg, class_metas()))
+    o3d_cpu: list[float] = []
+    o3d_s = open3d_integration_s(bag, frames, cfg.downsample, cfg.tsdf.voxel_size_m, cpu=o3d_cpu)
     n = run.frames
     h, w = mapper_resolution(bag, cfg.downsample)
     o3d_ms = 1000 * o3d_s / n
@@ -172,6 +188,10 @@ def cost_model(bag: Path, frames: int, noise: str = "default", seed: int = 0) ->
         "geometry_only_ms_per_frame": round(geo_ms, 2), "geometry_only_fps": round(1000 / geo_ms, 2),
         "open3d_ms_per_frame": round(o3d_ms, 2),
         "ratio_full_vs_geometry_only": round(full_ms / geo_ms, 2), "ratio_full_vs_open3d": round(full_ms / o3d_ms, 2),
+        "cpu_ms_per_frame": {"full": round(1000 * cpu["full"] / n, 2),
+                             "geometry_only": round(1000 * cpu["geometry_only"] / geo.frames, 2),
+                             "open3d": round(1000 * sum(o3d_cpu) / n, 2)},
+        "cpu_ratio_full_vs_geometry_only": round(cpu["full"] / n / max(cpu["geometry_only"] / geo.frames, 1e-9), 2),
         "steps": rows,
     }
 
@@ -200,6 +220,10 @@ def print_cost_model(r: dict, title: str = "") -> None:
           f"({r['ratio_full_vs_geometry_only']:.2f}x geometry only, {r['ratio_full_vs_open3d']:.2f}x Open3D)")
     print(f"  geometry only {r['geometry_only_ms_per_frame']:7.2f} ms/frame = {r['geometry_only_fps']:6.1f} frames/s")
     print(f"  Open3D        {r['open3d_ms_per_frame']:7.2f} ms/frame (depth-only VoxelBlockGrid, same frames)")
+    c = r.get("cpu_ms_per_frame")
+    if c:
+        print(f"  CPU time (all threads) per frame: full {c['full']:.2f} ms, geometry only {c['geometry_only']:.2f} ms "
+              f"({r['cpu_ratio_full_vs_geometry_only']:.2f}x), Open3D {c['open3d']:.2f} ms")
     print(f"  {'step':20s} {'frames':>6s} {'ms/call':>8s} {'ms/frame':>9s} {'ns/pixel':>9s} {'x Open3D':>9s}")
     for k, row in r["steps"].items():
         print(f"  {k:20s} {row['frames']:6d} {row['ms_per_call']:8.2f} {row['ms_per_frame']:9.2f} "
@@ -213,6 +237,12 @@ def _best(rounds: list[dict]) -> dict:
     best["open3d_ms_per_frame"] = min(r["open3d_ms_per_frame"] for r in rounds)
     best["steps"] = {k: min((r["steps"][k] for r in rounds if k in r["steps"]), key=lambda s: s["ms_per_frame"])
                      for k in best["steps"]}
+    if all("cpu_ms_per_frame" in r for r in rounds):
+        best["cpu_ms_per_frame"] = {k: min(r["cpu_ms_per_frame"][k] for r in rounds) for k in best["cpu_ms_per_frame"]}
+        best["cpu_ratio_full_vs_geometry_only"] = round(best["cpu_ms_per_frame"]["full"]
+                                                        / best["cpu_ms_per_frame"]["geometry_only"], 2)
+    # full against geometry only within each round (one process, the same load), the median round
+    best["ratio_full_vs_geometry_only"] = float(np.median([r["ratio_full_vs_geometry_only"] for r in rounds]))
     return best
 
 
@@ -258,6 +288,9 @@ def cost_model_main(args: argparse.Namespace) -> int:
                                                   / after["geometry_only_ms_per_frame"], 2),
               "steps": {k: round(before["steps"][k]["ms_per_frame"] / max(after["steps"][k]["ms_per_frame"], 1e-9), 2)
                         for k in before["steps"] if k in after["steps"]}}
+    if "cpu_ms_per_frame" in before and "cpu_ms_per_frame" in after:
+        b_cpu, a_cpu = before["cpu_ms_per_frame"]["full"], after["cpu_ms_per_frame"]["full"]
+        ratios["full_cpu_ms_per_frame"] = round(b_cpu / a_cpu, 2)
     print("speed-up before/after (ms per frame):", json.dumps(ratios))
     print(f"wrote {write_result('mapping_cost_model_compare', {**res, 'speedup': ratios})}")
     return 0

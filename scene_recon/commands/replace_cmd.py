@@ -68,7 +68,9 @@ def run(args: argparse.Namespace) -> int:
     marker = default_store_dir() / "inputs" / _input_fingerprint(graph_file, nodes_dir, cad_cfg, args)
     if n_workers > 1 and not marker.is_file():
         prestart_fork_server()
+    from scene_recon.cli import import_open3d
 
+    import_open3d()  # without its Plotly viewer's Dash and Plotly (0.4 s)
     from cad_replacement.cad.library import CadLibrary
     from cad_replacement.physical_check import PhysicalCheck
     from cad_replacement.replacer import CadReplacer

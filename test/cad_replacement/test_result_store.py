@@ -176,3 +176,14 @@ def test_the_replace_command_line_loads_no_other_stage_before_its_work():
             "'mujoco', 'scipy') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_open3d_imported_for_replace_leaves_dash_and_plotly_for_later():
+    code = ("import sys; from scene_recon.cli import import_open3d; import_open3d(); "
+            "print('open3d' in sys.modules, 'dash' in sys.modules, 'plotly' in sys.modules); "
+            "import open3d as o3d, numpy as np; "
+            "m = sys.modules['open3d.visualization.draw_plotly']; "
+            "pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.zeros((3, 3)))); "
+            "print(type(m.get_plotly_fig([pc])).__name__, 'dash' in sys.modules or 'plotly' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["True", "False", "False", "Figure", "True"]
