@@ -48,7 +48,8 @@ class FineSurfaceMap:
         mask[inside] = small_label[lab[inside]]
         if self.cfg.dilate_px > 0 and mask.any():
             size = 2 * int(self.cfg.dilate_px) + 1
-            mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
+            grown = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
+            return np.asarray(grown).astype(bool)
         return mask.astype(bool)
 
     def integrate(self, depth: np.ndarray, mask: np.ndarray, intrinsic: np.ndarray, pose: np.ndarray,

@@ -603,10 +603,12 @@ class PanopticMapper:
         owner = np.zeros(len(fv), np.int64)
         owner[labelled] = label_entity[flab[labelled]]
         core = owner > 0
-        # ... the others to the entity of their nearest coarse vertex (not voted: the fringe)
-        rest = np.flatnonzero(owner == 0)
-        nearest = assign_fine_vertices(fv[rest], v, cfg.assign_radius_voxels * self.config.tsdf.voxel_size_m)
-        owner[rest] = np.where(nearest >= 0, ent_v[np.maximum(nearest, 0)], 0)
+        # ... the others, as the fringe fill does (`extraction.fill_radius_m` > 0), to the entity of their
+        # nearest coarse vertex (not voted: the fringe)
+        if self.config.extraction.fill_radius_m > 0:
+            rest = np.flatnonzero(owner == 0)
+            nearest = assign_fine_vertices(fv[rest], v, cfg.assign_radius_voxels * self.config.tsdf.voxel_size_m)
+            owner[rest] = np.where(nearest >= 0, ent_v[np.maximum(nearest, 0)], 0)
         of = owner[ff]
         same = (of[:, 0] == of[:, 1]) & (of[:, 1] == of[:, 2]) & (of[:, 0] > 0)
         ff, fid = ff[same], of[same, 0]
@@ -617,7 +619,8 @@ class PanopticMapper:
             if len(faces) == 0 or not mine.any():
                 continue
             used, inv = np.unique(faces.ravel(), return_inverse=True)
-            if fine_coverage(v[mine], fv[used], radius) < cfg.min_coverage:
+            # judged on voted vertices alone, so the fringe fill's setting does not decide it
+            if fine_coverage(v[mine], fv[used[core[used]]], radius) < cfg.min_coverage:
                 continue
             order = np.argsort(~core[used], kind="stable")
             rank = np.empty(len(order), np.int64)
