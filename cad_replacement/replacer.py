@@ -41,9 +41,11 @@ from cad_replacement.collision import observed_collisions
 from cad_replacement.geometry_cache import GeometryCache, library_store
 from cad_replacement.layout_models import MIN_LAYOUT_THICKNESS, box_model
 from cad_replacement.observation import (
+    MAX_FOOTPRINT_SHARE,
     MESH_SAMPLES,
     ObjectObservation,
     ObservationError,
+    carried_footprint_points,
     clean_entity_points,
     front_direction_from_context,
 )
@@ -313,6 +315,14 @@ class CadReplacer:
         keep = clean_entity_points(points, normals, support_z, children)  # type: ignore[arg-type]
         if trimmed or not keep.all():
             points, normals = points[keep], normals[keep]
+        # the top hidden under what this object carries (observation.carried_footprint_points)
+        top_z = float(np.quantile(points[:, 2], 0.98))
+        spacing = float(np.sqrt(max(mesh.area, 1e-9) / MESH_SAMPLES))
+        extra, extra_normals = carried_footprint_points(top_z, children, spacing,  # type: ignore[arg-type]
+                                                        int(MAX_FOOTPRINT_SHARE * len(points)))
+        if len(extra):
+            points, normals = np.concatenate([points, extra]), np.concatenate([normals, extra_normals])
+        if trimmed or not keep.all() or len(extra):
             refit = fit_gravity_box(points)
             bottom = min(refit.z_min, support_z) if support_z is not None else refit.z_min
             box = refit.with_z_range(bottom, refit.z_max)

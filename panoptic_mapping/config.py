@@ -112,6 +112,28 @@ class TSDFConfig(Settings):
 
 
 @dataclass
+class FineSurfaceConfig(Settings):
+    """A finer TSDF for small things (`panoptic_mapping.fine_surface`): books, cups, bottles and monitor
+    stands are mapped at `voxel_size_m` beside the room's `tsdf.voxel_size_m`. `enabled: false` is the
+    paper's single-resolution map."""
+
+    enabled: bool = True
+    voxel_size_m: float = setting(0.01, min=0.002)
+    truncation_voxels: float = setting(4.0, min=1.0)
+    block_resolution: int = 8
+    #: Thing classes whose class-table `max_size_m` is at most this get the fine surface (0.8: monitor,
+    #: microwave, bag, box, bottle, book, cup; not furniture, whose 2 cm surface is fine for its size).
+    max_class_size_m: float = setting(0.8, min=0.0)
+    #: Pixels the small things' silhouettes grow by: their edges are what the coarse map blurs.
+    dilate_px: int = setting(4, min=0)
+    #: A fine vertex belongs to the entity of the nearest coarse vertex within this many coarse voxels.
+    assign_radius_voxels: float = setting(1.5, min=0.1)
+    #: An entity takes the fine surface when it comes within `assign_radius_voxels` of at least this
+    #: share of its voted coarse vertices.
+    min_coverage: float = setting(0.8, min=0.0, max=1.0)
+
+
+@dataclass
 class StaticConfig(Settings):
     """A camera standing still: a frame that moved less than this since the last integrated frame sees
     the same surfaces from the same place and adds nothing to the map, so it is skipped whole
@@ -203,6 +225,7 @@ class MapperConfig(Settings):
     association: AssociationConfig = field(default_factory=AssociationConfig)
     regularization: RegularizationConfig = field(default_factory=RegularizationConfig)
     tsdf: TSDFConfig = field(default_factory=TSDFConfig)
+    fine_surface: FineSurfaceConfig = field(default_factory=FineSurfaceConfig)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     static: StaticConfig = field(default_factory=StaticConfig)
     extraction: ExtractionConfig = field(default_factory=ExtractionConfig)

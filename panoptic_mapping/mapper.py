@@ -27,6 +27,7 @@ import numpy as np
 
 from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.depth_segmentation import segment_depth_planes
+from panoptic_mapping.fine_surface import FineSurfaceMap, assign_fine_vertices, fine_coverage
 from panoptic_mapping.fusion import BACKGROUND, FrameSegments, PanopticMasks, fuse
 from panoptic_mapping.image_ops import downsample_depth, downsample_labels
 from panoptic_mapping.panoptic_counts import PanopticCounts
@@ -52,6 +53,8 @@ class ClassMeta:
     name: str
     is_thing: bool
     category: str
+    #: the class table's largest extent (m) of an instance; None: not given
+    max_size_m: float | None = None
 
 
 @dataclass
@@ -78,6 +81,8 @@ class PanopticMapper:
         self.config = config or MapperConfig()
         self.classes = classes or {}
         self.tsdf = LabeledTSDF(self.config.tsdf)
+        fine = self.config.fine_surface
+        self.fine = FineSurfaceMap(fine, self.config.tsdf) if fine.enabled else None
         self.counts = PanopticCounts()
         self.merge_votes: dict[tuple[int, int], int] = {}
         self.frames_integrated = 0
@@ -258,6 +263,13 @@ class PanopticMapper:
         t["label_integration"] = time.perf_counter()
         self.tsdf.integrate_depth(depth, intr.matrix, pose, in_range=True)
         t["integration"] = time.perf_counter()
+        if self.fine is not None:
+            small = self._small_label_lut(pix_labels)
+            if small.any():
+                full = label_of_seg[segs.image]
+                mask = self.fine.small_pixels(full, small)
+                self.fine.integrate(depth, mask, intr.matrix, pose, points, full, lut)
+            t["fine_surface"] = time.perf_counter()
         self._integrated(frame)
         every = cfg.regularization.every_n_frames
         if every and self.frames_integrated % every == 0:
@@ -269,6 +281,21 @@ class PanopticMapper:
             prev = v
         return FrameStats(bool(masks.labels.any()), segs.count, new_labels, segs.num_split, segs.num_clustered_out,
                           timings)
+
+    def _small_class(self, class_id: int) -> bool:
+        """A thing class small enough for the fine surface (`fine_surface.max_class_size_m`)."""
+        meta = self.classes.get(class_id)
+        return bool(meta is not None and meta.is_thing and meta.max_size_m is not None
+                    and meta.max_size_m <= self.config.fine_surface.max_class_size_m)
+
+    def _small_label_lut(self, pix_labels: np.ndarray) -> np.ndarray:
+        """Per map label (index) whether its voted class is a small thing, for the labels in a frame."""
+        present = np.unique(pix_labels)
+        present = present[present > 0]
+        lut = np.zeros(int(present.max()) + 1 if len(present) else 1, bool)
+        for label in present.tolist():
+            lut[label] = self._small_class(self.counts.segment_class(self.counts.canonical(label))[0])
+        return lut
 
     def _associate(self, segs: FrameSegments, world: np.ndarray, flat: np.ndarray, sampled_share: float,
                    count_merges: bool) -> tuple[np.ndarray, int, np.ndarray]:
@@ -550,6 +577,55 @@ class PanopticMapper:
             rank[order] = np.arange(len(order))
             e.set_geometry(v[used[order]], rank[inv].reshape(-1, 3), int(voted[used].sum()))
             e.num_voxels = len(used)
+        if self.fine is not None:
+            self._attach_fine_surfaces([e for e in ents if e.is_thing and self._small_class(e.class_id)],
+                                       v, ent_v, voted, canon, lut)
+
+    def _attach_fine_surfaces(self, ents: list[Entity], v: np.ndarray, ent_v: np.ndarray,
+                              voted: np.ndarray, canon: np.ndarray, lut: np.ndarray) -> None:
+        """Small things take the fine TSDF's surface (`panoptic_mapping.fine_surface`): a fine vertex with
+        a label belongs to the entity most of that label's coarse surface went to, the others to the
+        entity of their nearest coarse vertex (as its fringe: `Entity.core_vertices`); an entity whose
+        fine surface comes near less than `min_coverage` of its voted coarse vertices (seen in too few
+        labelled frames) keeps the coarse one."""
+        if not ents or self.fine is None:
+            return
+        cfg = self.config.fine_surface
+        fv, ff, fl = self.fine.extract_mesh()
+        if len(ff) == 0:
+            return
+        # Open3D's order follows its hash map, which differs after a reload (as for the coarse mesh)
+        fv, ff, fl = canonical_mesh_order(fv, ff, fl)
+        # a labelled fine vertex goes where its label's coarse surface went (merges included) ...
+        label_entity = _majority_entity(canon[voted], ent_v[voted])
+        flab = lut[np.clip(fl, 0, len(lut) - 1)]
+        labelled = (flab > 0) & (flab < len(label_entity))
+        owner = np.zeros(len(fv), np.int64)
+        owner[labelled] = label_entity[flab[labelled]]
+        core = owner > 0
+        # ... the others, as the fringe fill does (`extraction.fill_radius_m` > 0), to the entity of their
+        # nearest coarse vertex (not voted: the fringe)
+        if self.config.extraction.fill_radius_m > 0:
+            rest = np.flatnonzero(owner == 0)
+            nearest = assign_fine_vertices(fv[rest], v, cfg.assign_radius_voxels * self.config.tsdf.voxel_size_m)
+            owner[rest] = np.where(nearest >= 0, ent_v[np.maximum(nearest, 0)], 0)
+        of = owner[ff]
+        same = (of[:, 0] == of[:, 1]) & (of[:, 1] == of[:, 2]) & (of[:, 0] > 0)
+        ff, fid = ff[same], of[same, 0]
+        radius = cfg.assign_radius_voxels * self.config.tsdf.voxel_size_m
+        for e in ents:
+            faces = ff[fid == e.id]
+            mine = voted & (ent_v == e.id)
+            if len(faces) == 0 or not mine.any():
+                continue
+            used, inv = np.unique(faces.ravel(), return_inverse=True)
+            # judged on voted vertices alone, so the fringe fill's setting does not decide it
+            if fine_coverage(v[mine], fv[used[core[used]]], radius) < cfg.min_coverage:
+                continue
+            order = np.argsort(~core[used], kind="stable")
+            rank = np.empty(len(order), np.int64)
+            rank[order] = np.arange(len(order))
+            e.set_geometry(fv[used[order]], rank[inv].reshape(-1, 3), int(core[used].sum()))
 
     def _revise_merged(self, ents: list[Entity], ent_v: np.ndarray, before: np.ndarray, canon: np.ndarray) -> None:
         """An entity that took in surface of a fragment or a split part carries the newest change of that
@@ -684,6 +760,8 @@ class PanopticMapper:
         """A copy of the map's state (arrays + metadata), cheap next to writing it: take it under the
         lock that guards the mapper, write it (`MapSnapshot.write`, the costly part) outside."""
         arrays = {f"tsdf_{k}": v for k, v in self.tsdf.state().items()}
+        if self.fine is not None:
+            arrays.update({f"fine_{k}": v for k, v in self.fine.state().items()})
         arrays.update({f"counts_{k}": v for k, v in self.counts.to_arrays().items()})
         mv = np.array([(a, b, n) for (a, b), n in self.merge_votes.items()], np.int64).reshape(-1, 3)
         arrays["merge_votes"] = mv
@@ -742,6 +820,8 @@ class PanopticMapper:
             with np.load(io.BytesIO(data), allow_pickle=False) as npz:
                 arrays = {k: npz[k] for k in npz.files}
             mapper.tsdf.load_state({k[5:]: v for k, v in arrays.items() if k.startswith("tsdf_")})
+            if mapper.fine is not None and "fine_block_keys" in arrays:
+                mapper.fine.load_state({k[5:]: v for k, v in arrays.items() if k.startswith("fine_")})
             mapper.counts = PanopticCounts.from_arrays(
                 {k[7:]: v for k, v in arrays.items() if k.startswith("counts_")})
             mapper.merge_votes = {(int(a), int(b)): int(n) for a, b, n in arrays["merge_votes"]}
@@ -794,6 +874,21 @@ class MapSnapshot:
         write_bytes_atomic(folder / "map.npz", data)
         write_text_atomic(folder / "map.json", json.dumps(meta, indent=1))
         return folder / "map.npz"
+
+
+def _majority_entity(labels: np.ndarray, entities: np.ndarray) -> np.ndarray:
+    """Per label (index), the entity most of its vertices belong to (0: none)."""
+    keep = (labels > 0) & (entities > 0)
+    labels, entities = labels[keep].astype(np.int64), entities[keep].astype(np.int64)
+    if len(labels) == 0:
+        return np.zeros(1, np.int64)
+    pairs, counts = np.unique(np.stack([labels, entities], axis=1), axis=0, return_counts=True)
+    order = np.lexsort((-counts, pairs[:, 0]))  # by label, the most frequent entity first
+    pairs = pairs[order]
+    first = np.r_[True, pairs[1:, 0] != pairs[:-1, 0]]
+    out = np.zeros(int(labels.max()) + 1, np.int64)
+    out[pairs[first, 0]] = pairs[first, 1]
+    return out
 
 
 def canonical_mesh_order(vertices: np.ndarray, faces: np.ndarray,

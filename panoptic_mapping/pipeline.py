@@ -58,7 +58,7 @@ class MappingFailed(InputError):
 
 def class_metas(table: ClassTable | None = None) -> dict[int, ClassMeta]:
     table = table or load_class_table()
-    return {c.id: ClassMeta(c.name, c.is_thing, c.category) for c in table}
+    return {c.id: ClassMeta(c.name, c.is_thing, c.category, c.max_size_m) for c in table}
 
 
 def masks_from_segmentation(seg: Any) -> PanopticMasks:
