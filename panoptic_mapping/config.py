@@ -121,8 +121,9 @@ class FineSurfaceConfig(Settings):
     voxel_size_m: float = setting(0.01, min=0.002)
     truncation_voxels: float = setting(4.0, min=1.0)
     block_resolution: int = 8
-    #: Thing classes whose class-table `max_size_m` is at most this get the fine surface (0.8: monitor,
-    #: microwave, bag, box, bottle, book, cup; not furniture, whose 2 cm surface is fine for its size).
+    #: Rigid thing classes whose class-table `max_size_m` is at most this get the fine surface (0.8:
+    #: monitor, bag, box, bottle, book, cup; not furniture, whose 2 cm surface is fine for its size, nor
+    #: articulated classes, whose parts are fitted on the room's surface).
     max_class_size_m: float = setting(0.8, min=0.0)
     #: Pixels the small things' silhouettes grow by: their edges are what the coarse map blurs.
     dilate_px: int = setting(4, min=0)
@@ -130,7 +131,7 @@ class FineSurfaceConfig(Settings):
     assign_radius_voxels: float = setting(1.5, min=0.1)
     #: An entity takes the fine surface when it comes within `assign_radius_voxels` of at least this
     #: share of its voted coarse vertices.
-    min_coverage: float = setting(0.8, min=0.0, max=1.0)
+    min_coverage: float = setting(0.5, min=0.0, max=1.0)
 
 
 @dataclass

@@ -283,9 +283,10 @@ class PanopticMapper:
                           timings)
 
     def _small_class(self, class_id: int) -> bool:
-        """A thing class small enough for the fine surface (`fine_surface.max_class_size_m`)."""
+        """A rigid thing class small enough for the fine surface (`fine_surface.max_class_size_m`); an
+        articulated one (a microwave) keeps the surface its parts were fitted on."""
         meta = self.classes.get(class_id)
-        return bool(meta is not None and meta.is_thing and meta.max_size_m is not None
+        return bool(meta is not None and meta.is_thing and meta.category == "rigid" and meta.max_size_m is not None
                     and meta.max_size_m <= self.config.fine_surface.max_class_size_m)
 
     def _small_label_lut(self, pix_labels: np.ndarray) -> np.ndarray:
@@ -587,7 +588,8 @@ class PanopticMapper:
         a label belongs to the entity most of that label's coarse surface went to, the others to the
         entity of their nearest coarse vertex (as its fringe: `Entity.core_vertices`); an entity whose
         fine surface comes near less than `min_coverage` of its voted coarse vertices (seen in too few
-        labelled frames) keeps the coarse one."""
+        labelled frames) keeps the coarse one, the others keep it where the fine one has nothing
+        (`_join_fine_surface`)."""
         if not ents or self.fine is None:
             return
         cfg = self.config.fine_surface
@@ -622,10 +624,7 @@ class PanopticMapper:
             # judged on voted vertices alone, so the fringe fill's setting does not decide it
             if fine_coverage(v[mine], fv[used[core[used]]], radius) < cfg.min_coverage:
                 continue
-            order = np.argsort(~core[used], kind="stable")
-            rank = np.empty(len(order), np.int64)
-            rank[order] = np.arange(len(order))
-            e.set_geometry(fv[used[order]], rank[inv].reshape(-1, 3), int(core[used].sum()))
+            _join_fine_surface(e, fv[used], inv.reshape(-1, 3), core[used], radius)
 
     def _revise_merged(self, ents: list[Entity], ent_v: np.ndarray, before: np.ndarray, canon: np.ndarray) -> None:
         """An entity that took in surface of a fragment or a split part carries the newest change of that
@@ -874,6 +873,31 @@ class MapSnapshot:
         write_bytes_atomic(folder / "map.npz", data)
         write_text_atomic(folder / "map.json", json.dumps(meta, indent=1))
         return folder / "map.npz"
+
+
+def _join_fine_surface(e: Entity, fine_v: np.ndarray, fine_f: np.ndarray, fine_core: np.ndarray,
+                       radius: float) -> None:
+    """Give `e` its fine surface and keep its coarse surface only where the fine one has nothing within
+    `radius` (a part the labelled frames saw too rarely stays as the coarse map has it, so a partial fine
+    surface never shrinks the object); voted vertices first (`Entity.core_vertices`)."""
+    from scipy.spatial import cKDTree
+
+    cv, cf = np.asarray(e.vertices, np.float64), np.asarray(e.faces, np.int64)
+    ccore = np.arange(len(cv)) < (e.core_vertices if 0 <= e.core_vertices <= len(cv) else len(cv))
+    if len(cv):
+        dist, _ = cKDTree(fine_v).query(cv, distance_upper_bound=radius)
+        uncovered = ~np.isfinite(dist)
+        cf = cf[uncovered[cf].all(axis=1)] if len(cf) else cf
+    else:
+        cf = np.zeros((0, 3), np.int64)
+    verts = np.concatenate([fine_v, cv])
+    is_core = np.concatenate([fine_core, ccore])
+    faces = np.concatenate([fine_f, cf + len(fine_v)])
+    used, inv = np.unique(faces.ravel(), return_inverse=True)
+    order = np.argsort(~is_core[used], kind="stable")
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    e.set_geometry(verts[used[order]], rank[inv].reshape(-1, 3), int(is_core[used].sum()))
 
 
 def _majority_entity(labels: np.ndarray, entities: np.ndarray) -> np.ndarray:
