@@ -316,6 +316,10 @@ def _distortion_factor(scale: NDArray[np.float64]) -> float:
 SEEN_BOTTOM_GAP = 0.002
 SEEN_BOTTOM_BAND = 0.01
 SEEN_BOTTOM_SHARE = 0.02
+#: ... and no more than ``SEEN_BOTTOM_BELOW_SHARE`` of the points lie ``SEEN_BOTTOM_BELOW`` (m) below the
+#: face: a cabinet's underside on 10 cm legs (0.9 % of its points lower) is not where it stands.
+SEEN_BOTTOM_BELOW = 0.02
+SEEN_BOTTOM_BELOW_SHARE = 0.002
 
 
 def seen_bottom(obs: ObjectObservation) -> float:
@@ -328,6 +332,8 @@ def seen_bottom(obs: ObjectObservation) -> float:
     if float(np.mean(face)) < SEEN_BOTTOM_SHARE:
         return bottom
     level = float(np.median(z[face]))
+    if float(np.mean(z < level - SEEN_BOTTOM_BELOW)) > SEEN_BOTTOM_BELOW_SHARE:
+        return bottom  # legs or a plinth reach lower: the face is a carcass's underside, not the bottom
     return level if level - bottom > SEEN_BOTTOM_GAP else bottom
 
 

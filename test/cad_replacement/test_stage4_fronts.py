@@ -203,3 +203,8 @@ def test_a_seen_bottom_face_above_the_support_plane_is_where_the_model_stands(
     low = obs.points[:, 2] < 0.75 + 0.008
     hidden = dataclasses.replace(obs, points=obs.points[~low], normals=obs.normals[~low], support_z=0.741)
     assert seen_bottom(hidden) == pytest.approx(0.741)
+    # a cabinet on legs: the carcass's underside 10 cm up is not its bottom
+    cabinet = build_model("cabinet", 1411409028)
+    legs, _ = observe_model(cabinet, yaw_pose(0.0, (1.0, -0.5, 0.0)), {}, np.random.default_rng(0), half=False)
+    assert float(np.percentile(legs.points[:, 2], 1.0)) > 0.05  # the legs are a sliver of the points
+    assert seen_bottom(legs) == pytest.approx(legs.bottom_z)
