@@ -14,7 +14,8 @@ the same graph waited for (20 objects: 5-7 s of 9-13 s). Each result is stored u
 so any change to one of them is a miss, never a stale result; a graph update re-fits only the objects
 whose observation changed. Files are written atomically (temp + rename) by the worker that computed
 the result, read with an unpickler that builds only the project's own classes, numpy arrays and
-plain containers; a damaged or foreign file is ignored (and overwritten by the next fit).
+plain containers (it calls no function of theirs); a damaged or foreign file is ignored (and
+overwritten by the next fit).
 """
 
 from __future__ import annotations
@@ -37,12 +38,17 @@ RESULT_STORE_VERSION = 1
 #: Packages whose sources enter the code digest (what a replacement's result can depend on).
 _CODE_PACKAGES = ("cad_replacement", "recon_core", "scene_graph")
 _LIBRARIES = ("numpy", "scipy", "open3d", "open3d-cpu", "trimesh")
-#: Module prefixes the unpickler may build classes from (and the few builtins a result holds).
-_ALLOWED_PREFIXES = ("cad_replacement.", "recon_core.", "numpy.", "collections", "copyreg", "_codecs",
-                     "pathlib")
+#: The unpickler builds classes of these packages (and calls nothing else of theirs) ...
+_ALLOWED_PREFIXES = ("cad_replacement.", "recon_core.", "numpy.", "collections", "pathlib")
+#: ... the plain builtin types ...
 _ALLOWED_BUILTINS = {"set", "frozenset", "tuple", "list", "dict", "slice", "complex", "range", "bytearray",
-                     "bytes", "str", "int", "float", "bool", "getattr"}
-_ALLOWED_NAMES = {("numpy", "dtype"), ("numpy", "ndarray"), ("numpy", "float64"), ("numpy", "int64")}
+                     "bytes", "str", "int", "float", "bool", "object"}
+#: ... and these functions: pickle's object reconstructors and numpy's array and scalar rebuilders.
+_ALLOWED_FUNCTIONS = {("copyreg", "__newobj__"), ("copyreg", "__newobj_ex__"), ("copyreg", "_reconstructor"),
+                      ("numpy._core.multiarray", "_reconstruct"), ("numpy.core.multiarray", "_reconstruct"),
+                      ("numpy._core.multiarray", "scalar"), ("numpy.core.multiarray", "scalar"),
+                      ("numpy._core.numeric", "_frombuffer"), ("numpy.core.numeric", "_frombuffer"),
+                      ("numpy", "dtype"), ("numpy", "ndarray")}
 
 
 def default_store_dir() -> Path:
@@ -128,13 +134,17 @@ def result_key(obs: Any, config: Any, class_table: Any, library_hash: str) -> st
 
 
 class _Unpickler(pickle.Unpickler):
-    """Builds only the project's classes, numpy arrays and plain containers."""
+    """Builds only classes of the project and numpy, numpy arrays and plain containers: no function of
+    theirs is called (a file from elsewhere cannot make it write files). The store is a cache in the
+    user's own folder, trusted as far as that folder is; this only keeps a stray file from doing more."""
 
     def find_class(self, module: str, name: str) -> Any:
-        if module == "builtins" and name in _ALLOWED_BUILTINS:
+        if (module == "builtins" and name in _ALLOWED_BUILTINS) or (module, name) in _ALLOWED_FUNCTIONS:
             return super().find_class(module, name)
-        if (module, name) in _ALLOWED_NAMES or module.startswith(_ALLOWED_PREFIXES):
-            return super().find_class(module, name)
+        if module.startswith(_ALLOWED_PREFIXES) or module in ("collections", "pathlib"):
+            found = super().find_class(module, name)
+            if isinstance(found, type):
+                return found
         raise pickle.UnpicklingError(f"result store: {module}.{name} is not allowed")
 
 

@@ -190,3 +190,21 @@ def test_open3d_imported_for_replace_leaves_dash_and_plotly_for_later():
             "print(type(m.get_plotly_fig([pc])).__name__, 'dash' in sys.modules or 'plotly' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["True", "False", "False", "Figure", "True"]
+
+
+def test_the_result_store_calls_no_function_of_the_project(tmp_path):
+    import io
+
+    from recon_core import io as recon_io
+
+    class _Write:  # pickles as a call of recon_core.io.write_text_atomic(path, text)
+        def __reduce__(self):
+            return recon_io.write_text_atomic, (str(tmp_path / "written"), "x")
+
+    store = ResultStore(tmp_path / "results")
+    key = "ef" + "2" * 62
+    store.path(key).parent.mkdir(parents=True, exist_ok=True)
+    body = io.BytesIO()
+    pickle.Pickler(body).dump(_Write())
+    store.path(key).write_bytes(f"scene_recon.cad_result 1 {key}\n".encode() + body.getvalue())
+    assert store.load(key) is None and not (tmp_path / "written").exists()
