@@ -40,26 +40,37 @@ class FineSurfaceMap:
             min_depth_m=room.min_depth_m, max_depth_m=room.max_depth_m, max_weight=room.max_weight,
             mesh_weight_threshold=room.mesh_weight_threshold))
 
-    def small_pixels(self, labels: np.ndarray, small_label: np.ndarray) -> np.ndarray:
-        """Mask of the pixels of small things (``small_label[label]`` true), grown by ``dilate_px``."""
+    def small_pixels(self, labels: np.ndarray, small_label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(pixels fused, pixels whose label votes): the pixels of small things (``small_label[label]``
+        true) grown by ``dilate_px`` are fused; their own labels vote only ``label_erode_px`` pixels
+        inside their silhouette (its edge pixels mix the object's depth with the background's, and at
+        1 cm they made a 7 cm bottle 9 cm wide), the ring's other labels vote as they are."""
         lab = np.asarray(labels)
         inside = (lab >= 0) & (lab < len(small_label))
-        mask = np.zeros(lab.shape, np.uint8)
-        mask[inside] = small_label[lab[inside]]
-        if self.cfg.dilate_px > 0 and mask.any():
+        base = np.zeros(lab.shape, np.uint8)
+        base[inside] = small_label[lab[inside]]
+        if not base.any():
+            return base.astype(bool), base.astype(bool)
+        grown, interior = base, base
+        if self.cfg.dilate_px > 0:
             size = 2 * int(self.cfg.dilate_px) + 1
-            grown = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
-            return np.asarray(grown).astype(bool)
-        return mask.astype(bool)
+            grown = np.asarray(cv2.dilate(base, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))))
+        if self.cfg.label_erode_px > 0:
+            size = 2 * int(self.cfg.label_erode_px) + 1
+            interior = np.asarray(cv2.erode(base, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))))
+        fused = grown.astype(bool)
+        vote = fused & (lab > 0) & ((base == 0) | (interior > 0))
+        return fused, vote
 
     def integrate(self, depth: np.ndarray, mask: np.ndarray, intrinsic: np.ndarray, pose: np.ndarray,
-                  points: np.ndarray, labels: np.ndarray, lut: np.ndarray) -> int:
+                  points: np.ndarray, labels: np.ndarray, lut: np.ndarray, vote: np.ndarray | None = None) -> int:
         """Fuse the ``mask`` pixels of ``depth`` (metres, in range, 0 = invalid) seen from camera-to-map
-        ``pose``, and their labels: ``points`` (H, W, 3) in the camera frame, ``labels`` (H, W) map labels
-        (0: none), ``lut`` the canonical label table. Returns the blocks touched (0: nothing small)."""
+        ``pose``, and the labels of the ``vote`` pixels (default: the mask's labelled ones): ``points``
+        (H, W, 3) in the camera frame, ``labels`` (H, W) map labels (0: none), ``lut`` the canonical label
+        table. Returns the blocks touched (0: nothing small)."""
         if not mask.any():
             return 0
-        vote = mask & (labels > 0)
+        vote = mask & (labels > 0) if vote is None else vote
         if vote.any():
             cam = np.ascontiguousarray(points[vote], np.float32).reshape(-1, 1, 3)
             world = cv2.transform(cam, np.asarray(pose, np.float64)[:3, :].astype(np.float32)).reshape(-1, 3)

@@ -267,8 +267,8 @@ class PanopticMapper:
             small = self._small_label_lut(pix_labels)
             if small.any():
                 full = label_of_seg[segs.image]
-                mask = self.fine.small_pixels(full, small)
-                self.fine.integrate(depth, mask, intr.matrix, pose, points, full, lut)
+                mask, vote = self.fine.small_pixels(full, small)
+                self.fine.integrate(depth, mask, intr.matrix, pose, points, full, lut, vote)
             t["fine_surface"] = time.perf_counter()
         self._integrated(frame)
         every = cfg.regularization.every_n_frames
@@ -884,12 +884,10 @@ def _join_fine_surface(e: Entity, fine_v: np.ndarray, fine_f: np.ndarray, fine_c
 
     cv, cf = np.asarray(e.vertices, np.float64), np.asarray(e.faces, np.int64)
     ccore = np.arange(len(cv)) < (e.core_vertices if 0 <= e.core_vertices <= len(cv) else len(cv))
-    if len(cv):
-        dist, _ = cKDTree(fine_v).query(cv, distance_upper_bound=radius)
+    if len(cv) and fine_core.any():  # voted fine vertices only: the fill's setting does not decide it
+        dist, _ = cKDTree(fine_v[fine_core]).query(cv, distance_upper_bound=radius)
         uncovered = ~np.isfinite(dist)
         cf = cf[uncovered[cf].all(axis=1)] if len(cf) else cf
-    else:
-        cf = np.zeros((0, 3), np.int64)
     verts = np.concatenate([fine_v, cv])
     is_core = np.concatenate([fine_core, ccore])
     faces = np.concatenate([fine_f, cf + len(fine_v)])

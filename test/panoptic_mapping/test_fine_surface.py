@@ -100,13 +100,23 @@ def test_assignment_and_coverage_are_bounded_by_the_radius():
 def test_only_small_things_pixels_are_fused(renderer):
     from panoptic_mapping.config import FineSurfaceConfig, TSDFConfig
 
-    fine = FineSurfaceMap(FineSurfaceConfig(dilate_px=0), TSDFConfig())
+    fine = FineSurfaceMap(FineSurfaceConfig(dilate_px=0, label_erode_px=0), TSDFConfig())
     labels = np.zeros((4, 5), np.int64)
     labels[1, 1], labels[2, 3] = 7, 9
     small = np.zeros(10, bool)
     small[7] = True
-    mask = fine.small_pixels(labels, small)
-    assert mask.sum() == 1 and mask[1, 1]
+    mask, vote = fine.small_pixels(labels, small)
+    assert mask.sum() == 1 and mask[1, 1] and (vote == mask).all()
+    # grown silhouettes fuse their ring; a small thing's own label votes inside its silhouette only
+    grow = FineSurfaceMap(FineSurfaceConfig(dilate_px=1, label_erode_px=1), TSDFConfig())
+    labels = np.zeros((9, 9), np.int64)
+    labels[2:7, 2:7] = 7
+    labels[:, 7:] = 3  # a neighbour (not small) beside it
+    labels[2:7, 1] = 3
+    mask, vote = grow.small_pixels(labels, small)
+    assert mask[1, 3] and mask[2, 1] and not mask[0, 0]  # ring included
+    assert vote[2, 1]  # the neighbour's pixel in the ring votes its own label
+    assert vote[4, 4] and not vote[2, 2]  # inside votes, the silhouette's edge does not
     none = np.zeros((4, 5), bool)
     assert fine.integrate(np.ones((4, 5), np.float32), none, INTR.matrix, np.eye(4), np.ones((4, 5, 3)), labels,
                           np.arange(10)) == 0
