@@ -43,8 +43,8 @@ class FineSurfaceMap:
     def small_pixels(self, labels: np.ndarray, small_label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(pixels fused, pixels whose label votes): the pixels of small things (``small_label[label]``
         true) grown by ``dilate_px`` are fused; their own labels vote only ``label_erode_px`` pixels
-        inside their silhouette (its edge pixels mix the object's depth with the background's, and at
-        1 cm they made a 7 cm bottle 9 cm wide), the ring's other labels vote as they are."""
+        inside their silhouette (0, the default: all of them; see the config field), the ring's other
+        labels vote as they are."""
         lab = np.asarray(labels)
         inside = (lab >= 0) & (lab < len(small_label))
         base = np.zeros(lab.shape, np.uint8)
