@@ -41,7 +41,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="folder of imported CAD assets (<class>/<model>/ with a URDF) added to the library")
     p.add_argument("--no-picture", action="store_true",
                    help="do not draw before_after.png (the observed node meshes beside the replaced scene; it is "
-                   "drawn while the export writes, but costs about a second of CPU)")
+                   "drawn while the export writes, but adds 1-2 s)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_preset_option(p)
     p.set_defaults(func=run)
