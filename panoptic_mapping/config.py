@@ -133,6 +133,10 @@ class FineSurfaceConfig(Settings):
     label_erode_px: int = setting(0, min=0)
     #: A fine vertex belongs to the entity of the nearest coarse vertex within this many coarse voxels.
     assign_radius_voxels: float = setting(1.5, min=0.1)
+    #: Unlabelled fine vertices join the entity of their nearest coarse vertex (its fringe), as the coarse
+    #: fill does. Off: they lie on the support around a small thing (the grown ring), and 3D PQ gave the
+    #: table's points near a cup to the cup (bench-kitchen cup PQ 26 -> 0 with it on).
+    fill: bool = False
     #: An entity takes the fine surface when it comes within `assign_radius_voxels` of at least this
     #: share of its voted coarse vertices.
     min_coverage: float = setting(0.5, min=0.0, max=1.0)

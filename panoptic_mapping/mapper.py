@@ -606,8 +606,8 @@ class PanopticMapper:
         owner[labelled] = label_entity[flab[labelled]]
         core = owner > 0
         # ... the others, as the fringe fill does (`extraction.fill_radius_m` > 0), to the entity of their
-        # nearest coarse vertex (not voted: the fringe)
-        if self.config.extraction.fill_radius_m > 0:
+        # nearest coarse vertex (not voted: the fringe), when `fine_surface.fill` says so
+        if cfg.fill and self.config.extraction.fill_radius_m > 0:
             rest = np.flatnonzero(owner == 0)
             nearest = assign_fine_vertices(fv[rest], v, cfg.assign_radius_voxels * self.config.tsdf.voxel_size_m)
             owner[rest] = np.where(nearest >= 0, ent_v[np.maximum(nearest, 0)], 0)
