@@ -114,10 +114,11 @@ class TSDFConfig(Settings):
 @dataclass
 class FineSurfaceConfig(Settings):
     """A finer TSDF for small things (`panoptic_mapping.fine_surface`): books, cups, bottles and monitor
-    stands are mapped at `voxel_size_m` beside the room's `tsdf.voxel_size_m`. `enabled: false` is the
+    stands are mapped at `voxel_size_m` beside the room's `tsdf.voxel_size_m`. Opt-in (the `accurate`
+    preset): it buys stage 4 accuracy for some 3D PQ (docs/STAGE2_MAPPING.md); `enabled: false` is the
     paper's single-resolution map."""
 
-    enabled: bool = True
+    enabled: bool = False
     voxel_size_m: float = setting(0.01, min=0.002)
     truncation_voxels: float = setting(4.0, min=1.0)
     block_resolution: int = 8

@@ -30,6 +30,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--paper-birth", action="store_true",
                    help="robustness: also run the full mapper with the paper's birth rule for thing entities "
                    "(every detection is born, no fragment merging), side by side on the same draws")
+    p.add_argument("--fine-surface", action="store_true",
+                   help="robustness: also run the full mapper with small things on the finer TSDF "
+                   "(fine_surface.enabled, opt-in), side by side on the same draws")
     p.add_argument("--out", required=True, help="report folder (created; files in it are replaced)")
     p.add_argument("--long-frames", type=int, default=2000, metavar="N",
                    help="full suite: frames of the long sequence for the per-frame cost (default 2000)")
@@ -60,7 +63,7 @@ def _robustness(args: argparse.Namespace, progress) -> int:
         raise ConfigError(f"--draws must be at least 1, got {args.draws}")
     try:
         spec = protocol_spec("quick" if args.suite == "robustness-quick" else "full", args.draws, args.scenes,
-                             paper_birth=args.paper_birth)
+                             paper_birth=args.paper_birth, fine_surface=args.fine_surface)
     except ValueError as exc:
         raise ConfigError(str(exc)) from exc
     results = run_protocol(spec, Path(args.out), progress)
