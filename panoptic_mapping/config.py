@@ -130,7 +130,7 @@ class FineSurfaceConfig(Settings):
     dilate_px: int = setting(4, min=0)
     #: Small things' own labels vote only this many pixels inside their silhouette (edge pixels mix
     #: depths). 0: every pixel. 2 thinned a bottle's fringe on bench-kitchen but took a monitor's base plate
-    #: (a band a few pixels high) away on bench-office: mapped pose success there fell from 0.9 to 0.7.
+    #: (a band a few pixels high) away on bench-office (draw 0: mapped pose success 0.9 -> 0.7).
     label_erode_px: int = setting(0, min=0)
     #: A fine vertex belongs to the entity of the nearest coarse vertex within this many coarse voxels.
     assign_radius_voxels: float = setting(1.5, min=0.1)

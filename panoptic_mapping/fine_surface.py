@@ -119,9 +119,7 @@ def fine_coverage(coarse_v: np.ndarray, fine_v: np.ndarray, radius: float) -> fl
     a coarse voxel of its fine one, so the blur itself does not lower it)."""
     from scipy.spatial import cKDTree
 
-    if len(coarse_v) == 0:
-        return 0.0
-    if len(fine_v) == 0:
+    if len(coarse_v) == 0 or len(fine_v) == 0:
         return 0.0
     dist, _ = cKDTree(fine_v).query(coarse_v, distance_upper_bound=radius)
     return float(np.isfinite(dist).mean())

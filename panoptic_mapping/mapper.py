@@ -570,14 +570,8 @@ class PanopticMapper:
         for e, a, b in zip(ents, starts, ends, strict=True):
             if b <= a:
                 continue
-            faces = f[a:b]
-            used, inv = np.unique(faces.ravel(), return_inverse=True)
             # voted vertices first, the fill's fringe after them (Entity.core_vertices)
-            order = np.argsort(~voted[used], kind="stable")
-            rank = np.empty(len(order), np.int64)
-            rank[order] = np.arange(len(order))
-            e.set_geometry(v[used[order]], rank[inv].reshape(-1, 3), int(voted[used].sum()))
-            e.num_voxels = len(used)
+            e.num_voxels = _set_core_first(e, v, f[a:b], voted)
         if self.fine is not None:
             self._attach_fine_surfaces([e for e in ents if e.is_thing and self._small_class(e.class_id)],
                                        v, ent_v, voted, canon, lut)
@@ -585,8 +579,9 @@ class PanopticMapper:
     def _attach_fine_surfaces(self, ents: list[Entity], v: np.ndarray, ent_v: np.ndarray,
                               voted: np.ndarray, canon: np.ndarray, lut: np.ndarray) -> None:
         """Small things take the fine TSDF's surface (`panoptic_mapping.fine_surface`): a fine vertex with
-        a label belongs to the entity most of that label's coarse surface went to, the others to the
-        entity of their nearest coarse vertex (as its fringe: `Entity.core_vertices`); an entity whose
+        a label belongs to the entity most of that label's coarse surface went to; with `fine_surface.fill`
+        the others go to the entity of their nearest coarse vertex (as its fringe:
+        `Entity.core_vertices`), else they are left out; an entity whose
         fine surface comes near less than `min_coverage` of its voted coarse vertices (seen in too few
         labelled frames) keeps the coarse one, the others keep it where the fine one has nothing
         (`_join_fine_surface`)."""
@@ -607,14 +602,14 @@ class PanopticMapper:
         core = owner > 0
         # ... the others, as the fringe fill does (`extraction.fill_radius_m` > 0), to the entity of their
         # nearest coarse vertex (not voted: the fringe), when `fine_surface.fill` says so
+        radius = cfg.assign_radius_voxels * self.config.tsdf.voxel_size_m
         if cfg.fill and self.config.extraction.fill_radius_m > 0:
             rest = np.flatnonzero(owner == 0)
-            nearest = assign_fine_vertices(fv[rest], v, cfg.assign_radius_voxels * self.config.tsdf.voxel_size_m)
+            nearest = assign_fine_vertices(fv[rest], v, radius)
             owner[rest] = np.where(nearest >= 0, ent_v[np.maximum(nearest, 0)], 0)
         of = owner[ff]
         same = (of[:, 0] == of[:, 1]) & (of[:, 1] == of[:, 2]) & (of[:, 0] > 0)
         ff, fid = ff[same], of[same, 0]
-        radius = cfg.assign_radius_voxels * self.config.tsdf.voxel_size_m
         for e in ents:
             faces = ff[fid == e.id]
             mine = voted & (ent_v == e.id)
@@ -891,11 +886,18 @@ def _join_fine_surface(e: Entity, fine_v: np.ndarray, fine_f: np.ndarray, fine_c
     verts = np.concatenate([fine_v, cv])
     is_core = np.concatenate([fine_core, ccore])
     faces = np.concatenate([fine_f, cf + len(fine_v)])
+    _set_core_first(e, verts, faces, is_core)
+
+
+def _set_core_first(e: Entity, vertices: np.ndarray, faces: np.ndarray, is_core: np.ndarray) -> int:
+    """Give `e` the vertices `faces` use (indices into `vertices`), the `is_core` ones first
+    (`Entity.core_vertices`); returns how many vertices it got."""
     used, inv = np.unique(faces.ravel(), return_inverse=True)
     order = np.argsort(~is_core[used], kind="stable")
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order))
-    e.set_geometry(verts[used[order]], rank[inv].reshape(-1, 3), int(is_core[used].sum()))
+    e.set_geometry(vertices[used[order]], rank[inv].reshape(-1, 3), int(is_core[used].sum()))
+    return len(used)
 
 
 def _majority_entity(labels: np.ndarray, entities: np.ndarray) -> np.ndarray:

@@ -26,7 +26,6 @@ import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import threading
@@ -108,6 +107,8 @@ def ros2_prefix_env(dest: Path, pkg: Path, domain: str) -> dict:
 
 
 def run_launch(bag: str, out: Path, env: dict, seeds: str, frames: int, monitor_factory) -> dict:
+    from scene_recon.ros_runner.processes import interrupt_group
+
     t0 = time.monotonic()
     proc = subprocess.Popen(["ros2", "launch", "scene_recon", "bag.launch.py", f"bag:={bag}", f"out:={out}",
                              f"seeds_per_class:={seeds}"], env=env, cwd=out.parent, stdout=subprocess.PIPE,
@@ -134,13 +135,7 @@ def run_launch(bag: str, out: Path, env: dict, seeds: str, frames: int, monitor_
             lines.append(f"[export_scene call] {call.stdout}{call.stderr}")
     finally:
         monitor.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C, once, to the whole launch
-        try:
-            code = proc.wait(timeout=120)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            code = proc.wait()
+        code = interrupt_group(proc, 120)
         reader.join(timeout=10)
     log = "".join(lines)
     (out.parent / f"{out.name}.log").write_text(log)

@@ -138,6 +138,21 @@ def usage(child: Child) -> dict[str, float]:
     return {"cpu_s": round(cpu_s, 2), "peak_rss_mib": round(int(peak) / 1024, 1)}
 
 
+def interrupt_group(proc: subprocess.Popen, timeout_s: float) -> int:
+    """Ctrl-C, once, to the process group `proc` leads (a `ros2 launch` started with
+    `start_new_session=True` and its nodes), then wait; a group still running after `timeout_s` is
+    killed. Returns `proc`'s exit code."""
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGINT)
+    try:
+        return int(proc.wait(timeout=timeout_s))
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        return int(proc.wait())
+
+
 def stop_children(children: list[Child], timeout_s: float = 30.0) -> dict[str, int]:
     """SIGINT every child still running (in the given order), then wait for each; a child that does not
     exit within `timeout_s` is killed. Returns the exit codes by node name."""

@@ -10,9 +10,7 @@ launch's process group (Ctrl-C) stops every process cleanly (exit 0, no tracebac
 from __future__ import annotations
 
 import json
-import os
 import re
-import signal
 import subprocess
 import threading
 import time
@@ -21,6 +19,7 @@ from pathlib import Path
 import pytest
 from testsupport.ros import domain_id
 
+from scene_recon.ros_runner.processes import interrupt_group
 from scene_recon.synthetic.generate import GenerateConfig, generate_recording
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -78,13 +77,7 @@ def test_bag_launch_maps_exports_and_stops_cleanly(colcon_workspace, tmp_path, m
         assert call.returncode == 0 and "success=True" in call.stdout, call.stdout + call.stderr
     finally:
         monitor.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C, once, to the whole launch
-        try:
-            code = proc.wait(timeout=90)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            code = proc.wait()
+        code = interrupt_group(proc, 90)
         reader.join(timeout=10)
     timings["stopped_s"] = time.monotonic() - t0
     print(", ".join(f"{k} {v:.1f}" for k, v in timings.items()))

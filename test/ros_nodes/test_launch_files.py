@@ -9,9 +9,7 @@ Skipped where the upstream sources are absent. The prefix is built once per sess
 
 from __future__ import annotations
 
-import os
 import shutil
-import signal
 import subprocess
 import sys
 import threading
@@ -22,6 +20,7 @@ import pytest
 from testsupport.ros import domain_id
 
 from recon_core.ros_graph import BAG_ARGUMENTS, LIVE_ARGUMENTS
+from scene_recon.ros_runner.processes import interrupt_group
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[2]
@@ -78,13 +77,9 @@ def test_mapping_launch_puts_the_map_under_out(ros2_env, tmp_path):
         while time.monotonic() < deadline and not any("data root" in line for line in lines):
             time.sleep(0.5)
         time.sleep(2.0)  # the nodes' timers and executor threads running
-        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C, once, to the whole launch
-        proc.wait(timeout=60)
-        reader.join(timeout=10)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+        interrupt_group(proc, 60)
+        reader.join(timeout=10)
     text = "".join(lines)
     assert f"data root {out / 'map'}" in text, text[-3000:]
     assert not (tmp_path / "scene_recon_data").exists()
