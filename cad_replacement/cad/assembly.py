@@ -223,13 +223,47 @@ class Assembly:
         )
 
     # ------------------------------------------------------------------ build
-    def build(self, model_id: str, params: Mapping[str, ParamValue], source: str) -> CadModel:
+    def _bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """The additive parts' bounding box (model coordinates) and the shift that recentres it."""
         adds = [p for lb in self._links.values() for p in lb.parts if not p.cut]
         if not adds:
             raise ValueError(f"{self.class_name}: assembly has no parts")
         lo = np.min([p.bounds()[0] for p in adds], axis=0)
         hi = np.max([p.bounds()[1] for p in adds], axis=0)
         shift = -np.array([0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]])
+        return lo, hi, shift
+
+    def _features(self, lo: NDArray[np.float64], hi: NDArray[np.float64], shift: NDArray[np.float64]) -> ModelFeatures:
+        """The matching features, from the parts alone (no mesh)."""
+        parts = [p.shifted(shift) for lb in self._links.values() for p in lb.parts]
+        supports = [
+            SupportSurface(
+                height=s.height + shift[2],
+                polygon=s.polygon + shift[:2],
+                clearance=s.clearance,
+                link=s.link,
+                enclosed=s.enclosed,
+            )
+            for s in self._supports
+        ]
+        box_lo, box_hi = lo + shift, hi + shift
+        planes = _analytic_planes(parts, box_lo, box_hi) + [s.plane for s in supports if not s.enclosed]
+        return ModelFeatures(
+            box_center=0.5 * (box_lo + box_hi),
+            box_size=box_hi - box_lo,
+            planes=tuple(merge_planes(planes)),
+            support_surfaces=tuple(supports),
+        )
+
+    def features(self) -> ModelFeatures:
+        """``build(...).features`` without building a mesh: the features are analytic (the box, the
+        covered box sides, the declared supports), the exact unions of the links' parts are what costs
+        (12 ms a model; a library's features are needed for every model of a class, its meshes only for
+        the few that matching shortlists)."""
+        return self._features(*self._bounds())
+
+    def build(self, model_id: str, params: Mapping[str, ParamValue], source: str) -> CadModel:
+        lo, hi, shift = self._bounds()
 
         origins = {self.root: np.zeros(3)}
         for js in self._joints:
@@ -257,25 +291,7 @@ class Assembly:
             )
             for js in self._joints
         ]
-        parts = [p.shifted(shift) for lb in self._links.values() for p in lb.parts]
-        supports = [
-            SupportSurface(
-                height=s.height + shift[2],
-                polygon=s.polygon + shift[:2],
-                clearance=s.clearance,
-                link=s.link,
-                enclosed=s.enclosed,
-            )
-            for s in self._supports
-        ]
-        box_lo, box_hi = lo + shift, hi + shift
-        planes = _analytic_planes(parts, box_lo, box_hi) + [s.plane for s in supports if not s.enclosed]
-        features = ModelFeatures(
-            box_center=0.5 * (box_lo + box_hi),
-            box_size=box_hi - box_lo,
-            planes=tuple(merge_planes(planes)),
-            support_surfaces=tuple(supports),
-        )
+        features = self._features(lo, hi, shift)
         return CadModel(
             class_name=self.class_name,
             model_id=model_id,

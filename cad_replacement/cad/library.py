@@ -36,6 +36,7 @@ from cad_replacement.cad.procedural import (
     build_model,
     definition_digest,
     procedural_definition,
+    procedural_features,
     procedural_model_id,
 )
 from cad_replacement.cad.urdf_import import CadImportError, import_urdf_model
@@ -316,14 +317,13 @@ class CadLibrary:
     def _compute(self, entry: CadEntry, digest: str) -> ModelFeatures:
         if entry.kind == "procedural":
             assert entry.seed is not None
-            # the model built for its features is the one ``model`` builds: kept, the candidates that go on
-            # to alignment (top-k of each object) do not build theirs twice (with empty caches a 20-object
-            # scene built 146 models twice, 2-4 s)
+            # analytic, from the builder's parts: no mesh is built for features (matching reads every model
+            # of a class, alignment builds the shortlisted ones: 144 of the 220 models with empty caches on a
+            # 20-object scene; building all 220 had cost 2.8 CPU s of the run's 9.5)
             model = self._models.get(digest)
-            if model is None:
-                model = build_model(entry.class_name, entry.seed, overrides=dict(entry.overrides) or None)
-                self._remember(digest, model)
-            return model.features
+            if model is not None:
+                return model.features
+            return procedural_features(entry.class_name, entry.seed, overrides=dict(entry.overrides) or None)
         assert entry.path is not None
         seed = int(digest[:8], 16)
         model = import_urdf_model(

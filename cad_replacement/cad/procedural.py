@@ -20,6 +20,7 @@ from numpy.typing import ArrayLike
 
 from cad_replacement.cad import builders_articulated, builders_furniture, builders_objects
 from cad_replacement.cad.assembly import Assembly
+from cad_replacement.cad.feature_types import ModelFeatures
 from cad_replacement.cad.model import CadModel, ParamValue
 from cad_replacement.cad.params import ParamSpec, sample_params
 from recon_core.errors import UnknownClassError
@@ -113,6 +114,20 @@ def procedural_model_id(
     return f"{base}_{definition_digest(procedural_definition(class_name, seed, overrides, target_size))[:8]}"
 
 
+def _assembly(class_name: str, seed: int,
+              overrides: Mapping[str, Any] | None) -> tuple[Assembly, dict[str, ParamValue]]:
+    builder = class_builder(class_name)
+    rng = np.random.default_rng(_check_seed(seed))
+    params = sample_params(builder.params, rng, overrides)
+    return builder.build(params), params
+
+
+def procedural_features(class_name: str, seed: int, *, overrides: Mapping[str, Any] | None = None) -> ModelFeatures:
+    """``build_model(class_name, seed, overrides=overrides).features``, without building the model's meshes
+    (``Assembly.features``: the same numbers, a fraction of the time)."""
+    return _assembly(class_name, seed, overrides)[0].features()
+
+
 def build_model(
     class_name: str,
     seed: int,
@@ -127,11 +142,8 @@ def build_model(
     and the unscaled model's extents equal them. ``target_size`` = (x, y, z) rescales per axis
     afterwards so the extents match exactly; the scale factors are recorded in ``params``.
     """
-    builder = class_builder(class_name)
     seed = _check_seed(seed)
-    rng = np.random.default_rng(seed)
-    params = sample_params(builder.params, rng, overrides)
-    asm = builder.build(params)
+    asm, params = _assembly(class_name, seed, overrides)
     model_id = procedural_model_id(class_name, seed, overrides, target_size)
     model = asm.build(model_id, params, source=f"procedural:{class_name}:seed={seed}")
     if target_size is None:

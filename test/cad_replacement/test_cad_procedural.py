@@ -223,3 +223,20 @@ def test_joint_values_are_clipped_and_checked(models) -> None:
         m.link_poses({"nope": 0.1})
     mesh = m.mesh({j.name: 1.0})
     assert len(mesh.faces) == sum(len(lk.mesh.faces) for lk in m.links)
+
+
+def test_features_without_meshes_equal_the_built_models(models) -> None:
+    """The library computes features from the parts alone (``procedural_features``): the same numbers as the
+    built model's, for every class and seed, and for a front-layout override."""
+    import json
+
+    from cad_replacement.cad.procedural import procedural_features
+
+    def same(a, b) -> bool:
+        return json.dumps(a.to_dict(), sort_keys=True) == json.dumps(b.to_dict(), sort_keys=True)
+
+    for (class_name, seed), model in models.items():
+        assert same(procedural_features(class_name, seed), model.features), (class_name, seed)
+    overrides = {"layout": "drawers"}
+    assert same(procedural_features("cabinet", 2, overrides=overrides),
+                build_model("cabinet", 2, overrides=overrides).features)

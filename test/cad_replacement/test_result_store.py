@@ -4,6 +4,7 @@ observed pieces built on demand, the export's parallel mesh files."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import pickle
 import subprocess
@@ -120,15 +121,33 @@ def test_a_second_process_reads_the_results_back_and_places_every_object_the_sam
     assert strip == [{k: v for k, v in r.to_dict().items() if k != "timings"} for r in b.records]
 
 
-def test_a_model_built_for_its_features_is_not_built_again(tmp_path, monkeypatch):
+def test_features_and_geometry_read_back_from_disk_replace_every_object_the_same(room, tmp_path):
+    """A second process with the feature and geometry caches of the first (no result store): the same scene."""
+    graph, nodes = room
+    config = CadReplacementConfig(workers=1)
+    cache = tmp_path / "cache" / "cad_features"
+    a = CadReplacer(CadLibrary(seeds_per_class=3, cache_dir=cache), config).replace(graph, nodes)
+    assert list(cache.glob("*.json")) and list((tmp_path / "cache" / "cad_geometry").glob("*.npz"))
+    library2 = CadLibrary(seeds_per_class=3, cache_dir=cache)
+    replacer2 = CadReplacer(library2, config)
+    b = replacer2.replace(graph, nodes)
+    assert library2.stats.computed == 0 and replacer2.cache.built == 0 and replacer2.cache.restored > 0
+    assert _summary(a) == _summary(b)
+    strip = [{k: v for k, v in r.to_dict().items() if k != "timings"} for r in a.records]
+    assert strip == [{k: v for k, v in r.to_dict().items() if k != "timings"} for r in b.records]
+
+
+def test_features_build_no_model_and_a_model_is_built_once(tmp_path, monkeypatch):
     lib = CadLibrary(seeds_per_class=2, classes=["cabinet"], cache_dir=tmp_path)
     calls = []
     real = library_module.build_model
     monkeypatch.setattr(library_module, "build_model", lambda *a, **k: calls.append(a) or real(*a, **k))
     entry = lib.entries("cabinet")[0]
-    feats = lib.features(entry)  # empty cache: built here
+    feats = lib.features(entry)  # empty cache: computed from the parts, no mesh built
+    assert calls == []
     model = lib.model(entry)
-    assert len(calls) == 1 and model.features == feats
+    assert lib.model(entry) is model and len(calls) == 1
+    assert json.dumps(model.features.to_dict(), sort_keys=True) == json.dumps(feats.to_dict(), sort_keys=True)
     # the model is the one a fresh build gives
     fresh = real(entry.class_name, entry.seed)
     assert [lk.name for lk in model.links] == [lk.name for lk in fresh.links]
