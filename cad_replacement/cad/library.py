@@ -364,7 +364,7 @@ class CadLibrary:
             path.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".json")
             with os.fdopen(fd, "w", encoding="utf-8") as f:
-                json.dump(payload, f)
+                f.write(json.dumps(payload))  # one string: ``json.dump`` encodes in Python, 3x slower
             os.replace(tmp, path)
         except OSError as exc:  # a read-only cache must not break matching
             _log.warning("cannot write feature cache %s: %s", path, exc)
