@@ -42,6 +42,7 @@ from scene_graph.merge import fragment_hosts, merged_entity
 from scene_graph.proximal import proximal_relations
 from scene_graph.refine import refine_box
 from scene_graph.support import SupportInference
+from scene_graph.surfaces import observed_supports
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +100,8 @@ class ContactGraphBuilder:
         #: Every entity as it was given (newest revision per id, ignored classes included): what a build
         #: from scratch starts from (``source_entities``).
         self._sources: dict[int, Entity] = {}
+        #: Support patches of the last build (``surfaces.py``), by node id.
+        self._patches: dict[int, Entity] = {}
 
     def source_entities(self) -> list[Entity]:
         """The entities held, as they were given (not the nodes' processed geometry: things without
@@ -340,6 +343,12 @@ class ContactGraphBuilder:
         nodes_by_id = {f.id: f for f in feats}
         neighbours, support_pairs = support_neighbours(feats, cfg.proximal.broadphase)
         support = SupportInference(nodes_by_id, neighbours, cfg.support).run()
+        patches = observed_supports(nodes_by_id, support, self._unlabelled, cfg)
+        for p in patches:  # static slabs on observed, undetected surfaces under unsupported movable things
+            feats.append(p.node)
+            nodes_by_id[p.id] = p.node
+            names[p.id] = p.node.name
+        self._patches = {p.id: p.node.entity for p in patches}
         t1 = time.perf_counter()
 
         graph = ContactGraph(name=name, frame_id=frame_id, nodes={ROOT_ID: root_node()})
@@ -371,6 +380,9 @@ class ContactGraphBuilder:
         graph.stats = {
             "layout_parts": layout_parts, "merged_fragments": merged, "geometric_layout": dict(self.layout_info),
             "layout_faces_given_m2": {str(k): v for k, v in self.layout_faces_given.items()},
+            "surface_patches": {str(p.child_id): {"id": p.id, "height": round(p.height, 4),
+                                                  "area_unlabelled_m2": round(p.area_unlabelled, 5),
+                                                  "area_own_m2": round(p.area_own, 5)} for p in patches},
             "nodes": len(feats), "support_candidate_pairs": support_pairs, "support_plane_tests": support.plane_tests,
             "proximal_broadphase_pairs": prox.broadphase_pairs, "proximal_exact_tests": prox.exact_tests,
             "support_s": t1 - t0, "relations_s": t2 - t1,
@@ -430,6 +442,7 @@ class ContactGraphBuilder:
         """Node id -> the entity (layout part, merged object) behind it, as of the last ``build``."""
         out = {f.id: f.entity for c in self._cache.values() for f in c.nodes}
         out.update({f.id: f.entity for f in self._merged.values()})
+        out.update(self._patches)
         return out
 
 

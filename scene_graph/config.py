@@ -205,6 +205,30 @@ class SupportConfig(Settings):
 
 
 @dataclass
+class SurfaceSupportConfig(Settings):
+    """Support patches from observed, undetected surfaces (``surfaces.py``): a movable thing left without
+    a carrying plane gets a static slab under it when upward faces of the map's unlabelled surface or of
+    its own mesh were seen near its bottom (a desk top the detector has no class for). NOT in the paper."""
+
+    enabled: bool = True
+    #: Class of the derived patch nodes (layout category: stage 4 exports them as static boxes).
+    class_name: str = "surface"
+    #: Upward faces within this (m) of the thing's bottom (its own: in its lowest quarter too) ...
+    band: float = setting(0.03, min=0.0)
+    #: ... under its footprint grown by ``margin`` (m; the patch covers that grown footprint) ...
+    margin: float = setting(0.02, min=0.0)
+    #: ... with at least min_area (m^2), or min_share of a small footprint, are an observed surface.
+    min_area: float = setting(0.002, min=0.0)
+    min_share: float = setting(0.1, min=0.0, max=1.0)
+    #: Thickness (m) of the patch below the surface (stage 4's layout slabs are at least 5 cm).
+    thickness: float = setting(0.05, min=0.0, min_exclusive=True)
+    #: Only movable things (fixed ones are held by their joint).
+    movable_only: bool = True
+    #: Patch ids: id_base + the thing's id (must exceed every map id and the derived layout's).
+    id_base: int = setting(200000, min=1)
+
+
+@dataclass
 class RefineConfig(Settings):
     """Box refinement (Fig. 3d): extend the box bottom down to the supporting plane."""
 
@@ -265,6 +289,7 @@ class SceneGraphConfig(Settings):
     fragments: FragmentConfig = field(default_factory=FragmentConfig)
     merge: MergeConfig = field(default_factory=MergeConfig)
     support: SupportConfig = field(default_factory=SupportConfig)
+    surfaces: SurfaceSupportConfig = field(default_factory=SurfaceSupportConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
     proximal: ProximalConfig = field(default_factory=ProximalConfig)
     match: MatchConfig = field(default_factory=MatchConfig)
