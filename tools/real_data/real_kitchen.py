@@ -11,13 +11,15 @@ and under which terms). Three steps, each usable on its own:
             output): per object what stands for it (CAD model, or observed mesh and why), the paper's AE
             (observed -> CAD RMS, Sec. 4.3) and the two-sided AE of each CAD-replaced object, their
             median and maximum, substitutions across classes, and the stillness of the movable objects
-            in PyBullet and MuJoCo over 2 s (``scene_recon.evaluation.physics``).
+            in PyBullet and MuJoCo over 2 s (``scene_recon.evaluation.physics``), and the support patches
+            the graph derived from observed, undetected surfaces (``scene_graph/surfaces.py``).
 
     PY=.venv/bin/python; R=/work/realdata
     $PY tools/real_data/real_kitchen.py fetch --tsdf-git GIT_DIR --models-git GIT_DIR --dest $R
     $PY tools/real_data/real_kitchen.py run --data $R/tsdf-fusion-python/data --model $R/models/yolox_nano.onnx \\
         --out $R/out/run_s5 --stride 5
-    $PY tools/real_data/real_kitchen.py measure $R/out/run_s5/scene [--json FILE]
+    $PY tools/real_data/real_kitchen.py measure $R/out/run_s5/scene [--json FILE] \\
+        [--picture docs/img/real_kitchen_scene.png]
 
 Scene folders of older code without fit figures in replacement.json are measured from the AE of the
 chosen candidate (two-sided only).
@@ -104,6 +106,7 @@ def measure(folder: Path, physics: bool = True) -> dict[str, Any]:
         "ae_two_sided_median_m": float(np.median(two)) if two else None,
         "ae_two_sided_max_m": max(two) if two else None,
         "max_penetration_after_m": rep.get("physical_check", {}).get("max_penetration_after_m"),
+        "surface_patches": surface_patches(folder),
         "per_object": rows,
     }
     if physics:
@@ -111,6 +114,38 @@ def measure(folder: Path, physics: bool = True) -> dict[str, Any]:
 
         out["physics"] = {"pybullet": check_pybullet(folder).to_dict(), "mujoco": check_mujoco(folder).to_dict()}
     return out
+
+
+def surface_patches(folder: Path) -> dict[str, dict[str, Any]]:
+    """The support patches the contact graph derived from observed, undetected surfaces
+    (``scene_graph/surfaces.py``): carried object name -> patch node name, surface height, evidence areas."""
+    path = folder / "contact_graph.json"
+    if not path.is_file():
+        return {}
+    graph = json.loads(path.read_text())
+    names = {int(n["id"]): n.get("name", str(n["id"])) for n in graph.get("nodes", [])}
+    out = {}
+    for child, p in (graph.get("stats", {}).get("surface_patches") or {}).items():
+        out[names.get(int(child), child)] = {"patch": names.get(int(p["id"]), str(p["id"])), "height_m": p["height"],
+                                             "area_unlabelled_m2": p["area_unlabelled_m2"],
+                                             "area_own_m2": p["area_own_m2"]}
+    return out
+
+
+def picture(scene_folder: Path, dest: Path, max_bytes: int = 500_000) -> None:
+    """A scene folder's before_after.png (map entities | replaced scene), shrunk until under ``max_bytes``."""
+    from PIL import Image
+
+    img = Image.open(scene_folder / "before_after.png").convert("RGB")
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    width = img.width
+    while True:
+        im = img if width == img.width else img.resize((width, round(img.height * width / img.width)), Image.LANCZOS)
+        im.quantize(colors=128, method=Image.Quantize.MEDIANCUT).save(dest, optimize=True)
+        if dest.stat().st_size <= max_bytes or width < 400:
+            break
+        width = int(width * 0.8)
+    print(f"{dest}: {im.width}x{im.height}, {dest.stat().st_size} bytes")
 
 
 def _print(m: dict[str, Any]) -> None:
@@ -123,6 +158,9 @@ def _print(m: dict[str, Any]) -> None:
     print(f"  CAD-replaced AE: median {mm(m['ae_median_m'])} mm, max {mm(m['ae_max_m'])} mm, "
           f"{m['ae_over_5cm']} over 5 cm (two-sided: median {mm(m['ae_two_sided_median_m'])}, max "
           f"{mm(m['ae_two_sided_max_m'])} mm); substitutions: {m['substitutions'] or 'none'}")
+    for child, p in (m.get("surface_patches") or {}).items():
+        print(f"  {child} stands on {p['patch']} (observed surface at z = {p['height_m']} m; upward faces "
+              f"{1e4 * p['area_unlabelled_m2']:.0f} cm^2 unlabelled, {1e4 * p['area_own_m2']:.0f} cm^2 its own)")
     for engine, p in m.get("physics", {}).items():
         n = len(p["displacement"])
         still = n - len(p["moved"])
@@ -145,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("folders", type=Path, nargs="+")
     m.add_argument("--no-physics", action="store_true")
     m.add_argument("--json", type=Path, help="write the figures here")
+    m.add_argument("--picture", type=Path, help="copy the first folder's before_after.png here (< 500 KB)")
     args = p.parse_args(argv)
     if args.cmd == "fetch":
         fetch(args.tsdf_git, args.models_git, args.dest)
@@ -156,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
         _print(res)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1, allow_nan=False))
+    if args.picture:
+        picture(args.folders[0], args.picture)
     return 0
 
 

@@ -376,18 +376,7 @@ def measure_run(run_dir: Path, physics: bool = True, data: Path | None = None) -
 
 def picture(run_dir: Path, dest: Path, max_bytes: int = 500_000) -> None:
     """The run's before_after.png (map entities | replaced scene), shrunk until it is under ``max_bytes``."""
-    from PIL import Image
-
-    img = Image.open(run_dir / "scene" / "before_after.png").convert("RGB")
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    width = img.width
-    while True:
-        im = img if width == img.width else img.resize((width, round(img.height * width / img.width)), Image.LANCZOS)
-        im.quantize(colors=128, method=Image.Quantize.MEDIANCUT).save(dest, optimize=True)
-        if dest.stat().st_size <= max_bytes or width < 400:
-            break
-        width = int(width * 0.8)
-    print(f"{dest}: {im.width}x{im.height}, {dest.stat().st_size} bytes")
+    real_kitchen.picture(run_dir / "scene", dest, max_bytes)
 
 
 def _print(m: dict[str, Any]) -> None:
