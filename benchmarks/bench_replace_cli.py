@@ -124,7 +124,20 @@ def _run_replace(graph: Path, out: Path, tree: Path | None, cache: Path, cold: b
     restored = sum(1 for d in details if "restored_s" in (d.get("timings") or {}))
     return {"wall_s": wall, "cpu_s": cpu, "replace_log_s": rep.get("wall_s"), "objects": rep.get("objects"),
             "rematched": rep.get("rematched"), "restored": restored,
-            "picture": (out / "before_after.png").is_file(), "timings": rep.get("timings")}
+            "picture": (out / "before_after.png").is_file(), "timings": rep.get("timings"),
+            "phases_s": rep.get("phases_s")}
+
+
+#: The command's own marks (``replacement.json`` ``phases_s``: when each phase ended, seconds since the
+#: process started): imports done, graph and library read, objects replaced (fits or results read back,
+#: physical check), scene folder written, picture done (what is left after it is writing the summary).
+PHASES = ("imports", "input", "replaced", "exported", "picture")
+
+
+def _phase_text(phases: dict[str, float | None] | None) -> str:
+    if not phases:
+        return ""
+    return " [" + ", ".join(f"{k} {phases[k]:.2f}" for k in PHASES if phases.get(k) is not None) + "]"
 
 
 def node_update(graph_dir: Path, repeats: int) -> dict[str, Any]:
@@ -258,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
                 cpu = "" if row["cpu_s"] is None else f", {row['cpu_s']:.2f} CPU s"
                 print(f"round {k + 1} {mode:4s} {name:8s} {row['wall_s']:6.2f} s wall{cpu} (replacement by its "
                       f"log {row['replace_log_s']:.2f} s, {row['restored']} results restored, load "
-                      f"{os.getloadavg()[0]:.1f})", flush=True)
+                      f"{os.getloadavg()[0]:.1f}){_phase_text(row.get('phases_s'))}", flush=True)
     load_after = os.getloadavg()[0]
     summary: dict[str, Any] = {}
     for name in trees:
@@ -267,6 +280,10 @@ def main(argv: list[str] | None = None) -> int:
             summary[name][f"{mode}_median_s"] = _median(runs[name][mode])
             summary[name][f"{mode}_s"] = [r["wall_s"] for r in runs[name][mode]]
             summary[name][f"{mode}_cpu_median_s"] = _median(runs[name][mode], "cpu_s")
+            marks = [r["phases_s"] for r in runs[name][mode] if r.get("phases_s")]
+            summary[name][f"{mode}_phases_median_s"] = {
+                k: statistics.median(m[k] for m in marks) for k in PHASES
+                if marks and all(m.get(k) is not None for m in marks)}
     if "baseline" in summary:
         summary["ratio_this_over_baseline"] = {
             f"{mode}{kind}": summary["this"][f"{mode}{kind}_median_s"] / summary["baseline"][f"{mode}{kind}_median_s"]
@@ -294,6 +311,10 @@ def main(argv: list[str] | None = None) -> int:
         cpu = "" if s["cold_cpu_median_s"] is None else \
             f" (CPU s of the process tree: cold {s['cold_cpu_median_s']:.2f}, warm {s['warm_cpu_median_s']:.2f})"
         print(f"{name:8s} wall median: cold {s['cold_median_s']:.2f} s, warm {s['warm_median_s']:.2f} s{cpu}")
+        for mode in ("cold", "warm"):
+            if s.get(f"{mode}_phases_median_s"):
+                print(f"         {mode} phases (median, s since the process started):"
+                      f"{_phase_text(s[f'{mode}_phases_median_s'])}")
     if "ratio_this_over_baseline" in summary:
         print("this / baseline: " + ", ".join(f"{k} {v:.2f}" for k, v in summary["ratio_this_over_baseline"].items()))
     if node is not None:

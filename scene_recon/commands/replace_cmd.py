@@ -8,6 +8,7 @@ import hashlib
 import json
 import logging
 import math
+import os
 import threading
 import time
 from pathlib import Path
@@ -81,9 +82,11 @@ def run(args: argparse.Namespace) -> int:
     from recon_core.contact_graph import ContactGraph
     from recon_core.entity import load_entities
 
+    phases = {"imports": _since_start()}
     graph = ContactGraph.load(graph_file)
     entities = {e.id: e for e in load_entities(nodes_dir)}
     library = CadLibrary(root=args.cad_dir, seeds_per_class=args.seeds_per_class)
+    phases["input"] = _since_start()
     check = PhysicalCheck(method=args.method)
     # results stored by earlier runs (same observation, settings, library and code) are read back
     workers = ReplaceWorkers(library, n_workers, store="library") if n_workers > 1 else None
@@ -96,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
             workers.close()
     if workers is not None and workers.store is not None and not workers.failed:
         _write_marker(marker)
+    phases["replaced"] = _since_start()
     from cad_replacement.export import export_scene
     from cad_replacement.scene_model import scene_record
     from recon_core.io import write_text_atomic
@@ -106,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
     picture_job = _PictureJob(graph, entities, out)
     exported = export_scene(result.scene, out, on_glb=None if args.no_picture else picture_job.start)
     urdf = exported.urdf
+    phases["exported"] = _since_start()
     physics = check.last_report
     summary = {"scene": result.scene.name, "method": args.method, "objects": len(result.scene),
                "rematched": result.rematched, "timings": result.timings,
@@ -116,15 +121,18 @@ def run(args: argparse.Namespace) -> int:
                "wall_s": time.perf_counter() - t0, "urdf": str(urdf)}
     if graph.stats.get("scene"):  # the generated scene behind the graph (eval-scene checks its ground truth)
         summary["scene_identity"] = graph.stats["scene"]
-    write_text_atomic(out / "replacement.json", json.dumps(
-        {**summary, "objects_detail": [r.to_dict() for r in result.records],
-         "scene": scene_record(result.scene)}, indent=1))
     cad = [r for r in result.records if r.kind == "cad"]
     if not cad and not any(r.kind == "observed_mesh" for r in result.records):
         raise InputError(f"no object of {graph_file} could be replaced: the graph has no object nodes with "
                          "geometry (check `scene-recon graph` output and its nodes/ folder)")
     graph.save(out / "contact_graph.json")  # the input, so the folder can be scored on its own
     picture = picture_job.result()
+    phases["picture"] = _since_start()
+    # when each phase ended, seconds since the process started (None where that is unknown)
+    summary["phases_s"] = phases
+    write_text_atomic(out / "replacement.json", json.dumps(
+        {**summary, "objects_detail": [r.to_dict() for r in result.records],
+         "scene": scene_record(result.scene)}, indent=1))
     if args.json:
         print_json(summary)
         return 0
@@ -146,6 +154,15 @@ def run(args: argparse.Namespace) -> int:
           f"{exported.mjcf.name}, {exported.joint_states.name}, replacement.json"
           + (f", {exported.glb.name}" if exported.glb else "") + (f", {picture.name}" if picture else ""))
     return 0
+
+
+def _since_start() -> float | None:
+    """Seconds since this process started (Linux: its start time in /proc), or ``None``."""
+    try:
+        start_ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
+        return time.clock_gettime(time.CLOCK_BOOTTIME) - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
 
 
 def _input_fingerprint(graph_file: Path, nodes_dir: Path, config: Any, args: argparse.Namespace) -> str:
