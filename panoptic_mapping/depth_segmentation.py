@@ -18,9 +18,18 @@ arithmetic (and its float32 rounding) is the same, operation by operation, as th
 
 from __future__ import annotations
 
+import logging
 import os
+import pickle
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
 
 import cv2
 import numpy as np
@@ -28,6 +37,7 @@ import numpy as np
 from panoptic_mapping.config import DepthSegmentationConfig
 from recon_core.frame import CameraIntrinsics
 
+log = logging.getLogger(__name__)
 _EPS = 1e-9
 Planes = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -302,3 +312,150 @@ def segment_depth_planes(
     lut = np.zeros(n, np.int32)
     lut[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
     return lut[labels], points, normals
+
+
+def segment_depth_labels(depth: np.ndarray, intr: CameraIntrinsics, cfg: DepthSegmentationConfig,
+                         pixel_area_scale: float = 1.0) -> np.ndarray:
+    """The segment labels of `segment_depth_planes` alone (what `SegmentationWorker` computes)."""
+    return segment_depth_planes(depth, intr, cfg, pixel_area_scale)[0]
+
+
+# ------------------------------------------------------------------------------ a second process
+_HEADER = struct.Struct("<Q")
+
+
+def _send(stream: Any, obj: object) -> None:
+    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    stream.write(_HEADER.pack(len(data)))
+    stream.write(data)
+    stream.flush()
+
+
+def _receive(stream: Any) -> Any:
+    head = stream.read(_HEADER.size)
+    if len(head) < _HEADER.size:
+        raise EOFError
+    (n,) = _HEADER.unpack(head)
+    data = stream.read(n)
+    if len(data) < n:
+        raise EOFError
+    return pickle.loads(data)  # our own process's messages, over its private pipe
+
+
+def worker_main() -> None:
+    """The worker process: (depth, intrinsics, config, pixel area scale) in on stdin, (labels, CPU seconds)
+    out on stdout, in order, until stdin closes. Interrupts are the parent's to handle (it closes stdin)."""
+    global THREADS
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    THREADS = 1  # the other core maps the frames before: a second thread here would only contend with it
+    src, dst = sys.stdin.buffer, sys.stdout.buffer
+    sys.stdout = sys.stderr  # nothing else may write into the result stream
+    while True:
+        try:
+            depth, intr, cfg, area = _receive(src)
+        except EOFError:
+            return
+        c0 = time.process_time()
+        try:
+            out: object = (segment_depth_labels(depth, intr, cfg, area), time.process_time() - c0)
+        except Exception as exc:  # sent back: the parent segments that frame itself
+            out = exc
+        _send(dst, out)
+
+
+class SegmentationWorker:
+    """Depth segmentation of frames ahead, on another core (issue 26): a process of its own, because the
+    mapper's Open3D integration holds the interpreter lock for its whole call. Jobs run in submission
+    order; each `submit` returns a Future of (labels, the worker's CPU seconds), bit-identical to
+    `segment_depth_labels` here (the same code on the same input). Falls back to segmenting on the
+    calling thread when the process cannot start or dies (the Future then holds the error and the caller
+    segments the frame itself)."""
+
+    def __init__(self) -> None:
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._pending: list[Future] = []
+        self._lock = threading.Lock()
+        self._reader: threading.Thread | None = None
+        self.broken = False
+        #: CPU seconds of the worker's segmentations so far (its process's, not the caller's CPU time)
+        self.cpu_s = 0.0
+
+    def _start(self) -> subprocess.Popen[bytes]:
+        if self._proc is None:
+            code = "from panoptic_mapping.depth_segmentation import worker_main; worker_main()"
+            self._proc = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                          close_fds=True)
+            self._reader = threading.Thread(target=self._read, args=(self._proc,), name="depth-seg-reader",
+                                            daemon=True)
+            self._reader.start()
+        return self._proc
+
+    def _read(self, proc: subprocess.Popen[bytes]) -> None:
+        while True:
+            try:
+                out = _receive(proc.stdout)
+            except (EOFError, OSError, ValueError, pickle.UnpicklingError) as exc:
+                if self._proc is proc:  # not closed by us
+                    log.warning("the depth segmentation worker process ended (%r): segmenting on the mapper's "
+                                "thread from now on", exc)
+                self._fail(RuntimeError(f"depth segmentation worker ended ({exc!r})"))
+                return
+            with self._lock:
+                fut = self._pending.pop(0) if self._pending else None
+                if isinstance(out, tuple):
+                    self.cpu_s += out[1]
+            if fut is None:
+                continue
+            if isinstance(out, BaseException):
+                fut.set_exception(out)
+            else:
+                fut.set_result(out)
+
+    def _fail(self, exc: BaseException) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, []
+            self.broken = True
+        for fut in pending:
+            fut.set_exception(exc)
+
+    def submit(self, depth: np.ndarray, intr: CameraIntrinsics, cfg: DepthSegmentationConfig,
+               pixel_area_scale: float = 1.0) -> Future:
+        fut: Future = Future()
+        fut.set_running_or_notify_cancel()  # runs in order, never cancelled
+        if self.broken:
+            fut.set_exception(RuntimeError("depth segmentation worker unavailable"))
+            return fut
+        try:
+            proc = self._start()
+            with self._lock:
+                self._pending.append(fut)
+            assert proc.stdin is not None
+            _send(proc.stdin, (depth, intr, cfg, pixel_area_scale))
+        except (OSError, ValueError) as exc:
+            log.warning("depth segmentation worker unavailable (%s): segmenting on the mapper's thread", exc)
+            self._fail(exc)
+        return fut
+
+    def drain(self) -> None:
+        """Wait until every job submitted so far is done."""
+        with self._lock:
+            pending = list(self._pending)
+        for fut in pending:
+            fut.exception()
+
+    def close(self) -> None:
+        """Stop the process (it exits when its input closes) and fail what is still pending."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        try:
+            if proc.stdin is not None:
+                proc.stdin.close()
+            proc.wait(timeout=5)
+        except (OSError, subprocess.TimeoutExpired):
+            proc.kill()
+            proc.wait()
+        if self._reader is not None:
+            self._reader.join(timeout=5)
+        self._fail(RuntimeError("depth segmentation worker closed"))
+        self.broken = False

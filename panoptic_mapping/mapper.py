@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from panoptic_mapping.config import MapperConfig
-from panoptic_mapping.depth_segmentation import segment_depth_planes
+from panoptic_mapping.depth_segmentation import backproject_planes, segment_depth_planes
 from panoptic_mapping.fine_surface import FineSurfaceMap, assign_fine_vertices, fine_coverage
 from panoptic_mapping.fusion import BACKGROUND, FrameSegments, PanopticMasks, fuse
 from panoptic_mapping.image_ops import downsample_depth, downsample_labels
@@ -34,7 +34,7 @@ from panoptic_mapping.panoptic_counts import PanopticCounts
 from panoptic_mapping.tsdf_map import LabeledTSDF
 from recon_core.entity import Entity
 from recon_core.errors import CheckpointError
-from recon_core.frame import RGBDFrame
+from recon_core.frame import CameraIntrinsics, RGBDFrame
 from recon_core.io import write_bytes_atomic, write_text_atomic
 
 log = logging.getLogger(__name__)
@@ -138,13 +138,15 @@ class PanopticMapper:
         return self.config.mode == "full"
 
     # ------------------------------------------------------------------ keyframes
-    def is_keyframe(self, frame: RGBDFrame) -> bool:
-        """Pose moved or time passed enough since the last keyframe (or gating disabled)."""
+    def is_keyframe(self, frame: RGBDFrame, since: tuple[np.ndarray, int] | None = None) -> bool:
+        """Pose moved or time passed enough since the last keyframe (or gating disabled); `since`: the
+        (pose, stamp) of a keyframe to test against instead of the last one marked."""
         kc = self.config.keyframes
-        if not kc.enabled or self._last_key_pose is None or frame.pose is None:
+        key_pose, key_time = since if since is not None else (self._last_key_pose, self._last_key_time)
+        if not kc.enabled or key_pose is None or frame.pose is None:
             return True
-        moved, angle = _pose_change(self._last_key_pose, frame.pose)
-        late = (frame.timestamp_ns - (self._last_key_time or 0)) * 1e-9 >= kc.max_interval_s
+        moved, angle = _pose_change(key_pose, frame.pose)
+        late = (frame.timestamp_ns - (key_time or 0)) * 1e-9 >= kc.max_interval_s
         return bool(moved >= kc.min_translation_m or angle >= kc.min_rotation_deg or late)
 
     def is_static(self, frame: RGBDFrame) -> bool:
@@ -211,10 +213,21 @@ class PanopticMapper:
         self._integrated(frame)
         return FrameStats(False, 0, 0, 0, 0, {"integration": (time.perf_counter() - t0) * 1000})
 
-    def integrate(self, frame: RGBDFrame, masks: PanopticMasks | None) -> FrameStats:
+    def label_depth(self, frame: RGBDFrame) -> tuple[np.ndarray, CameraIntrinsics, float]:
+        """What a label frame is segmented from: the in-range depth at the processing resolution (only
+        readings within [min_depth_m, max_depth_m] allocate blocks or carry labels), its intrinsics and
+        the pixel area scale. A pure function of the frame and the config, like the depth segmentation
+        of it (`segment_depth_labels`): both can be computed ahead, on another core (`pipeline`)."""
+        ds = self.config.downsample
+        depth = self.tsdf.in_range(np.asarray(downsample_depth(frame.depth, ds), np.float32))
+        return depth, (frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)), 1.0 / (ds * ds)
+
+    def integrate(self, frame: RGBDFrame, masks: PanopticMasks | None,
+                  depth_segments: tuple[np.ndarray, np.ndarray] | None = None) -> FrameStats:
         """Integrate one posed frame; `masks` (full-resolution panoptic masks) only on keyframes.
 
         Frames without masks that propagate no labels (see `fuses_labels`) take `integrate_geometry`.
+        `depth_segments`: (`label_depth(frame)[0]`, `segment_depth_labels` of it) computed ahead, or None.
         """
         if not self.fuses_labels(masks):
             # geometry only: labels come from keyframes (the extraction fills the fringe)
@@ -223,12 +236,14 @@ class PanopticMapper:
         t0 = time.perf_counter()
         cfg = self.config
         ds = cfg.downsample
-        # only readings within [min_depth_m, max_depth_m] allocate blocks or carry labels
-        depth = self.tsdf.in_range(np.asarray(downsample_depth(frame.depth, ds), np.float32))
-        intr = frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)
-        area = 1.0 / (ds * ds)
+        intr, area = (frame.intrinsics if ds == 1 else frame.intrinsics.scaled(1.0 / ds)), 1.0 / (ds * ds)
         t = {}
-        geo, planes, _normals = segment_depth_planes(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
+        if depth_segments is None:
+            depth = self.label_depth(frame)[0]
+            geo, planes, _normals = segment_depth_planes(depth, intr, cfg.depth_segmentation, pixel_area_scale=area)
+        else:  # segmented ahead (the same labels); the points `segment_depth_planes` would return
+            depth, geo = depth_segments
+            planes = backproject_planes(depth, intr)
         points = cv2.merge(list(planes))
         t["depth_segmentation"] = time.perf_counter()
         if masks is not None:

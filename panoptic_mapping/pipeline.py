@@ -6,12 +6,14 @@ itself (asynchronous segmentation service), but with the same gating and convers
 
 from __future__ import annotations
 
+import atexit
+import collections
 import dataclasses
 import json
 import logging
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -22,6 +24,7 @@ from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.dataio import DataInputConfig
 from panoptic_mapping.dataio.diagnose import explain_empty
 from panoptic_mapping.dataio.registry import open_dataset
+from panoptic_mapping.depth_segmentation import SegmentationWorker
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
 from panoptic_mapping.gravity import (
     GravityConfig,
@@ -106,6 +109,12 @@ class MappingRun:
     #: Checkpoints written by this run and the time they took.
     checkpoints: int = 0
     checkpoint_s: float = 0.0
+    #: Label frames whose depth segmentation ran ahead on the worker process (`segment_ahead`), frames
+    #: segmented ahead but not used (a guess that missed), and the worker's CPU seconds (not in this
+    #: process's CPU time).
+    ahead_used: int = 0
+    ahead_unused: int = 0
+    ahead_cpu_s: float = 0.0
     poses: list[np.ndarray] = field(default_factory=list)
 
     @property
@@ -261,11 +270,14 @@ def _choose_origin(mapper: PanopticMapper, pose: np.ndarray, recentre_beyond_m: 
 
 
 def _integrate_or_skip(mapper: PanopticMapper, frame: Any, masks: PanopticMasks | None, run: MappingRun,
-                       geometry_only: bool = False) -> Any:
+                       geometry_only: bool = False, ahead: _SegmentAhead | None = None) -> Any:
     """`mapper.integrate` (`integrate_geometry` when `geometry_only`), with a failing frame logged and
-    counted instead of ending the run."""
+    counted instead of ending the run; `ahead`: the frame's depth segmentation may have been computed ahead."""
     try:
-        return mapper.integrate_geometry(frame) if geometry_only else mapper.integrate(frame, masks)
+        if geometry_only:
+            return mapper.integrate_geometry(frame)
+        segments = ahead.take(frame, mapper.fuses_labels(masks)) if ahead is not None else None
+        return mapper.integrate(frame, masks, segments)
     except (MemoryError, KeyboardInterrupt):
         raise
     except Exception as exc:  # Open3D raises RuntimeError; a bad frame must not end a long recording
@@ -274,6 +286,89 @@ def _integrate_or_skip(mapper: PanopticMapper, frame: Any, masks: PanopticMasks 
         run.failed_frames += 1
         run.failures[msg] = run.failures.get(msg, 0) + 1
         return None
+
+
+#: Frames read ahead of the one being mapped whose depth segmentation may start early (`_SegmentAhead`):
+#: with labels on every third frame, a label frame's segmentation runs while the one before is mapped.
+SEGMENT_AHEAD = 3
+_WORKER: SegmentationWorker | None = None
+
+
+def segmentation_worker() -> SegmentationWorker:
+    """The process-wide depth segmentation worker (started on first use, reused by later runs)."""
+    global _WORKER
+    if _WORKER is None:
+        _WORKER = SegmentationWorker()
+        atexit.register(_WORKER.close)
+    return _WORKER
+
+
+class _SegmentAhead:
+    """Frames read `ahead` frames in advance; the depth segmentation of those that will fuse labels starts on
+    the worker process while earlier frames are mapped (issue 26: two cores). The segmentation is a pure
+    function of the frame, so the map is the same, bit for bit, as segmenting each frame when it is
+    integrated; which frames fuse labels is guessed from the mapper's state (keyframe gating, the label
+    cadence), and a frame guessed wrong is segmented on the mapper's thread as before."""
+
+    def __init__(self, frames: Iterator[Any], mapper: PanopticMapper, ahead: int, worker: SegmentationWorker,
+                 run: MappingRun):
+        self.frames, self.mapper, self.ahead, self.worker, self.run = frames, mapper, ahead, worker, run
+        self.buffer: collections.deque[tuple[Any, Any, Any]] = collections.deque()
+        self.done = False
+
+    def __iter__(self) -> _SegmentAhead:
+        return self
+
+    def __next__(self) -> Any:
+        while not self.done and len(self.buffer) <= self.ahead:
+            try:
+                self.buffer.append((next(self.frames), None, None))
+            except StopIteration:
+                self.done = True
+        if not self.buffer:
+            raise StopIteration
+        frame, fut, depth = self.buffer.popleft()
+        self._current = (frame, fut, depth)
+        return frame
+
+    def start(self) -> None:
+        """Before the current frame is integrated: start the frames read ahead that will fuse labels."""
+        m = self.mapper
+        n_label = m.config.keyframes.label_every_n_frames
+        key: tuple[Any, Any] | None = None  # the keyframes the frames before will have made
+        for i, (frame, fut, depth) in enumerate(self.buffer):
+            if frame.pose is None:
+                continue
+            keyframe = m.is_keyframe(frame, key)
+            if keyframe:
+                key = (frame.pose, frame.timestamp_ns)
+            if fut is not None:
+                continue
+            if keyframe or (n_label > 0 and (m.frames_integrated + i + 1) % n_label == 0):
+                depth, intr, area = m.label_depth(frame)
+                self.buffer[i] = (frame, self.worker.submit(depth, intr, m.config.depth_segmentation, area), depth)
+
+    def take(self, frame: Any, needed: bool) -> tuple[np.ndarray, np.ndarray] | None:
+        """(depth, segment labels) of `frame` when it was segmented ahead and is `needed`, else None."""
+        cur, fut, depth = self._current
+        self._current = (None, None, None)
+        if fut is None or cur is not frame:
+            return None
+        if not needed:  # left to finish on the worker (its CPU time is counted at the end)
+            self.run.ahead_unused += 1
+            return None
+        try:
+            labels, _cpu = fut.result()
+        except Exception as exc:  # the worker failed: the mapper segments it itself
+            log.debug("depth segmentation ahead failed (%s): segmented on the mapper's thread", exc)
+            return None
+        self.run.ahead_used += 1
+        return depth, labels
+
+    def close(self, cpu_before: float) -> None:
+        """Wait for what is still running on the worker (the next run starts on an idle one); its CPU time."""
+        self.worker.drain()
+        self.run.ahead_cpu_s += self.worker.cpu_s - cpu_before
 
 
 def frames_to_read(available: int, data_config: DataInputConfig) -> int:
@@ -295,6 +390,7 @@ def map_recording(
     checkpointer: Checkpointer | None = None,
     resume: Checkpoint | None = None,
     stop: Callable[[], bool] | None = None,
+    segment_ahead: int | None = None,
 ) -> tuple[PanopticMapper, MappingRun]:
     """Integrate every posed frame of `source`; segment keyframes only (when gating is enabled).
 
@@ -351,7 +447,12 @@ def map_recording(
 
     with open_dataset(source, data_config) as loader:
         total = frames_to_read(len(loader), data_config) if hasattr(loader, "__len__") else None
-        frames = iter(loader)
+        frames: Iterator[Any] = iter(loader)
+        n_ahead = SEGMENT_AHEAD if segment_ahead is None else segment_ahead
+        ahead = None
+        if not geometry_only and n_ahead > 0:
+            frames = ahead = _SegmentAhead(frames, mapper, n_ahead, segmentation_worker(), run)
+            worker_cpu = ahead.worker.cpu_s
         bar = tqdm(total=total, desc="mapping", unit="frame", disable=not progress)
         read = 0
         while True:
@@ -393,8 +494,10 @@ def map_recording(
                 run.segmentation_s += time.perf_counter() - t1
                 run.segmentation_calls += 1
                 masks = masks_from_segmentation(seg)
+            if ahead is not None:
+                ahead.start()
             t2 = time.perf_counter()
-            stats = _integrate_or_skip(mapper, frame, masks, run, geometry_only)
+            stats = _integrate_or_skip(mapper, frame, masks, run, geometry_only, ahead)
             run.mapper_s += time.perf_counter() - t2
             bar.update(1)
             if stats is None:
@@ -413,6 +516,8 @@ def map_recording(
             if checkpointer is not None and checkpointer.due(mapper.frames_integrated):
                 checkpoint()
         bar.close()
+        if ahead is not None:
+            ahead.close(worker_cpu)
         if run.interrupted:
             checkpoint()
         elif read < skip:
