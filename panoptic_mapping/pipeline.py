@@ -371,6 +371,28 @@ class _SegmentAhead:
         self.run.ahead_cpu_s += self.worker.cpu_s - cpu_before
 
 
+def segment_ahead(mapper: PanopticMapper, frame: Any) -> tuple[Any, np.ndarray, Any]:
+    """Start the depth segmentation of `frame`, a label frame integrated later (a keyframe waiting for its
+    masks), on the worker process; `ahead_segments` gives it to `mapper.integrate` (the mapper node)."""
+    depth, intr, area = mapper.label_depth(frame)
+    return segmentation_worker().submit(depth, intr, mapper.config.depth_segmentation, area), depth, mapper.config
+
+
+def ahead_segments(ahead: tuple[Any, np.ndarray, Any] | None, mapper: PanopticMapper, needed: bool = True
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """`integrate`'s `depth_segments` from `segment_ahead` (waits for it); None when not `needed`, failed, or
+    started for another map (one loaded since, with its own config)."""
+    if ahead is None or not needed or ahead[2] is not mapper.config:
+        return None
+    fut, depth, _cfg = ahead
+    try:
+        labels, _cpu = fut.result()
+    except Exception as exc:  # the worker failed: the mapper segments the frame itself
+        log.debug("depth segmentation ahead failed (%s): segmented on the mapper's thread", exc)
+        return None
+    return depth, labels
+
+
 def frames_to_read(available: int, data_config: DataInputConfig) -> int:
     """How many of ``available`` frames `--start`/`--stride`/`--max-frames` select (the progress total)."""
     n = len(range(max(data_config.start, 0), available, max(data_config.stride, 1)))

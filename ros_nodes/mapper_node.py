@@ -81,7 +81,7 @@ from panoptic_mapping.gravity import (
     up_of_alignment,
 )
 from panoptic_mapping.mapper import MapSnapshot, PanopticMapper
-from panoptic_mapping.pipeline import class_metas
+from panoptic_mapping.pipeline import ahead_segments, class_metas, segment_ahead
 from recon_core.classes import load_class_table
 from recon_core.config import CONFIG_DIR, Settings, load_config, setting
 from recon_core.errors import CheckpointError, SceneReconError
@@ -111,6 +111,8 @@ class _Pending:
     depth_msg: Image
     future: object
     sent: float
+    #: its depth segmentation, started on the worker process while the labels are computed (issue 26)
+    segments: tuple | None = None
 
 
 @dataclass
@@ -502,7 +504,7 @@ class MapperNode(Node):
                 self.mapper.mark_keyframe(frame)
                 req = SegmentImage.Request(color=color_msg, has_depth=True, depth=depth_msg)
                 self.pending.append(_Pending(frame, color_msg, depth_msg, self.seg_client.call_async(req),
-                                             time.monotonic()))
+                                             time.monotonic(), segment_ahead(self.mapper, frame)))
                 self.counters["segmentation_calls"] += 1
                 return
             else:  # not marked: the next frames stay keyframe candidates until the service is up
@@ -672,12 +674,12 @@ class MapperNode(Node):
                     self.counters["segmentation_failed"] += 1
                     self.get_logger().warning(f"segmentation call failed: {exc}", throttle_duration_sec=5.0)
                 self.segmentation_ms.add(1000 * (time.monotonic() - item.sent))
-                self._integrate(item.frame, masks)
+                self._integrate(item.frame, masks, segments=item.segments)
             elif time.monotonic() - item.sent > self.seg_timeout_s:
                 self.counters["segmentation_timeout"] += 1
                 self.get_logger().warning("segmentation service too slow: keyframe integrated without labels",
                                           throttle_duration_sec=5.0)
-                self._integrate(item.frame, None)
+                self._integrate(item.frame, None, segments=item.segments)
             else:
                 still.append(item)
         self.pending = still
@@ -692,7 +694,9 @@ class MapperNode(Node):
             cls[s.id], thing[s.id], score[s.id] = s.class_id, s.is_thing, s.score
         return PanopticMasks(np.where(labels < n, labels, 0).astype(np.int32), cls, thing, score)
 
-    def _integrate(self, frame: RGBDFrame, masks: PanopticMasks | None, geometry_only: bool = False) -> None:
+    def _integrate(self, frame: RGBDFrame, masks: PanopticMasks | None, geometry_only: bool = False,
+                   segments: tuple | None = None) -> None:
+        """`segments`: the frame's depth segmentation started ahead (`segment_ahead`), if any."""
         t0 = time.perf_counter()
         try:
             if masks is not None and masks.labels.shape != frame.depth.shape:
@@ -701,7 +705,8 @@ class MapperNode(Node):
             if geometry_only:
                 self.mapper.integrate_geometry(frame)
             else:
-                self.mapper.integrate(frame, masks)
+                self.mapper.integrate(frame, masks, ahead_segments(segments, self.mapper,
+                                                                              self.mapper.fuses_labels(masks)))
             self.counters["integrated"] += 1
             self._changed = True
             self._last_step_failed = False

@@ -114,3 +114,25 @@ def test_the_worker_returns_the_labels_computed_here(recording):
         np.testing.assert_array_equal(labels, futures[0].result()[0])
     finally:
         worker.close()
+
+
+def test_a_keyframe_segmented_while_its_masks_are_computed_maps_the_same(recording):
+    """The mapper node's use: `segment_ahead` when a keyframe is sent for labels, `ahead_segments` when they came."""
+    from panoptic_mapping.mapper import PanopticMapper
+    from panoptic_mapping.pipeline import ahead_segments, class_metas, segment_ahead
+
+    cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml")
+    cfg.depth_segmentation.min_segment_pixels = 30
+    with open_dataset(recording) as loader:
+        frames = [f for i, f in enumerate(loader) if i < 4]
+    inline, ahead = PanopticMapper(cfg, class_metas()), PanopticMapper(cfg, class_metas())
+    for f in frames:
+        started = segment_ahead(ahead, f)
+        other_map = PanopticMapper(load_config(MapperConfig, CONFIG_DIR / "mapper.yaml"), class_metas())
+        assert ahead_segments(started, other_map) is None  # a map loaded since: its own config
+        assert ahead_segments(started, ahead, needed=False) is None
+        segments = ahead_segments(started, ahead, ahead.fuses_labels(None))
+        assert (segments is not None) == ahead.fuses_labels(None)
+        inline.integrate(f, None)
+        ahead.integrate(f, None, segments)
+    _assert_same_map(inline, ahead)

@@ -1,0 +1,157 @@
+#!/usr/bin/env python3
+"""Issue 26's ROS check: does the mapper node keep up with a 30 Hz bag played at rate 1.0, the other three
+nodes running? Frames published, received, integrated and dropped by the mapper node, per run.
+
+    ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST ROS_DOMAIN_ID=61 .venv/bin/python tools/ros_camera_rate.py \
+        --out out/ros_camera_rate [--scene bench-kitchen | --bag BAG] [--runs 1] [--rate 1.0] [--live-order]
+
+The graph is the one `scene-recon ros-run --bag` and `launch/bag.launch.py` start (`recon_core.ros_graph`:
+player, segmentation service with the oracle, mapper, contact graph, CAD replacer, each its own process),
+with one change: the player does not wait for the mapper (`pace_topic` empty), so frames come at the
+recorded 30 Hz whatever the mapper does, as from a live camera. By default the mapper integrates in recorded
+order as it does for bags (`in_order`: a keyframe holds later frames until its labels come; queue of 120
+frames); `--live-order` gives the live-camera settings instead (keyframes integrate when their labels come,
+queue of 30). After the player's last frame the tool waits until the mapper's queue is empty and no
+keyframe waits for labels (at most `--drain-timeout` s), then reads the mapper's counters from its
+`mapper_status` topic and stops the nodes.
+
+Per run: frames in the recording, frames the mapper received (`received`: image pairs), integrated, dropped
+because the queue was full (`dropped_backlog`), skipped for another reason (no pose, no camera info, a bad
+image, depth without color, a still camera), the largest queue seen, the seconds from the first frame to the
+queue drained after the last one, and each node's CPU seconds; the load average before and after. Writes
+OUT/results.json. The generated suite scenes (`scene_recon.synthetic.suite`) are 640x480 at 30 Hz.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+#: Mapper counters of frames it received but did not integrate, other than the backlog's drops.
+SKIPPED = ("no_tf", "no_camera_info", "bad_image", "unpaired_depth", "static_frames", "integration_error")
+
+
+def frames_in(bag: str) -> int:
+    from panoptic_mapping.dataio.registry import open_dataset
+
+    with open_dataset(bag) as loader:
+        return sum(1 for _ in loader)
+
+
+def one_run(bag: str, out: Path, rate: float, live_order: bool, drain_timeout_s: float, quiet: bool) -> dict:
+    from recon_core.ros_graph import GraphOptions, graph_nodes
+    from scene_recon.ros_runner.monitor import GraphMonitor
+    from scene_recon.ros_runner.processes import LogSink, start_child, stop_children, usage
+
+    opts = GraphOptions(bag=bag, rate=rate, out=str(out.resolve()), seeds_per_class=2)
+    specs = graph_nodes(opts)
+    for spec in specs:
+        if spec.name == "rgbd_player":
+            spec.parameters["pace_topic"] = ""  # the recorded timing, whatever the mapper does
+        if spec.name == "panoptic_mapper":
+            spec.parameters["status_period_s"] = 0.5
+            if live_order:
+                spec.parameters.update(in_order=False, max_queue=30)
+    run_dir = out / "ros"
+    sink = LogSink(quiet=quiet)
+    monitor = GraphMonitor(opts.map_frame)
+    children = []
+    load_before = os.getloadavg()
+    row: dict = {"bag": bag, "rate": rate, "in_order": not live_order}
+    max_queue, first_frame_at, drained_at = 0, None, None
+    last_cpu: dict[str, dict] = {}
+    try:
+        children = [start_child(spec, run_dir, sink) for spec in specs]
+        player = next(c for c in children if c.name == "rgbd_player")
+        played_at = None
+        t0 = time.monotonic()
+        while True:
+            time.sleep(0.1)
+            for c in children:
+                last_cpu[c.name] = usage(c) or last_cpu.get(c.name, {})
+            dead = [c.name for c in children if c is not player and c.poll() is not None]
+            if dead:
+                row["error"] = f"nodes exited: {dead}"
+                break
+            status = monitor.snapshot().status or {}
+            counters = status.get("counters", {})
+            max_queue = max(max_queue, int(status.get("queue", 0)))
+            if first_frame_at is None and counters.get("received", 0) > 0:
+                first_frame_at = time.monotonic()
+            if played_at is None and player.poll() is not None:
+                played_at = time.monotonic()
+            if played_at is not None:
+                fresh = monitor.snapshot().status_at > played_at + 0.6  # a status sent after the last frame
+                if fresh and status.get("queue", 1) == 0 and status.get("pending_segmentations", 1) == 0:
+                    drained_at = time.monotonic()
+                    break
+                if time.monotonic() - played_at > drain_timeout_s:
+                    row["error"] = f"queue not drained {drain_timeout_s:.0f} s after the last frame"
+                    break
+            if time.monotonic() - t0 > 600:
+                row["error"] = "no end after 600 s"
+                break
+        status = monitor.snapshot().status or {}
+    finally:
+        monitor.close()
+        codes = stop_children(list(reversed(children))) if children else {}
+    c = status.get("counters", {})
+    row.update({
+        "received": c.get("received", 0), "integrated": c.get("integrated", 0),
+        "dropped_backlog": c.get("dropped_backlog", 0), "skipped": {k: c[k] for k in SKIPPED if c.get(k)},
+        "keyframes_labelled": f"{c.get('segmented_keyframes', 0)}/{c.get('segmentation_calls', 0)}",
+        "max_queue": max_queue,
+        "first_frame_to_drained_s": round(drained_at - first_frame_at, 2) if drained_at and first_frame_at else None,
+        "cpu_s": {k: v.get("cpu_s") for k, v in last_cpu.items()},
+        "load_before": [round(x, 2) for x in load_before], "load_after": [round(x, 2) for x in os.getloadavg()],
+        "exit_codes": codes,
+    })
+    return row
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--scene", default="bench-kitchen", help="generated suite scene (300 frames 640x480, 30 Hz)")
+    ap.add_argument("--bag", default="", help="a bag instead (generated: its ground truth beside it)")
+    ap.add_argument("--runs", type=int, default=1)
+    ap.add_argument("--rate", type=float, default=1.0)
+    ap.add_argument("--live-order", action="store_true", help="live-camera mapper settings (see above)")
+    ap.add_argument("--drain-timeout", type=float, default=60.0)
+    ap.add_argument("--quiet-nodes", action="store_true")
+    args = ap.parse_args()
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if args.bag:
+        bag = str(Path(args.bag).resolve())
+    else:
+        from scene_recon.synthetic.suite import suite_scene
+
+        bag = str(suite_scene(args.scene, progress=False)[0])
+    n = frames_in(bag)
+    rows = []
+    for i in range(args.runs):
+        row = one_run(bag, args.out / f"run{i + 1}", args.rate, args.live_order, args.drain_timeout, args.quiet_nodes)
+        row["frames_in_recording"] = n
+        rows.append(row)
+        print(f"run {i + 1}: {n} frames played at rate {args.rate}: received {row['received']}, integrated "
+              f"{row['integrated']}, dropped (queue full) {row['dropped_backlog']}, skipped {row['skipped']}, "
+              f"largest queue {row['max_queue']}, first frame to drained {row['first_frame_to_drained_s']} s "
+              f"(recording {n / 30:.1f} s), keyframes labelled {row['keyframes_labelled']}, CPU s {row['cpu_s']}, "
+              f"load {row['load_before'][0]} -> {row['load_after'][0]}" + (f"; {row['error']}" if "error" in row
+                                                                            else ""),
+              flush=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "results.json").write_text(json.dumps({"runs": rows}, indent=1, default=str), encoding="utf-8")
+    print(f"wrote {args.out / 'results.json'}")
+    return 0 if all("error" not in r for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
