@@ -89,6 +89,11 @@ def _replace_in_worker(obs: ObjectObservation, config: CadReplacementConfig,
         cache = GeometryCache(_LIBRARY.model, samples=config.ae_model_samples, store=library_store(_LIBRARY))
         _CACHES[config.ae_model_samples] = cache
     rep = replace_object(obs, _LIBRARY, config, cache=cache, class_table=class_table)
+    keep = getattr(_LIBRARY, "keep_model", None)
+    if keep is not None and rep.chosen is not None:
+        # the caller reads the chosen model, collision shapes included, from the library's model store
+        # instead of building it and computing its collisions after every fit has come back
+        keep(rep.chosen.match.entry)
     rep.model = None  # the caller rebuilds it from the entry: meshes are costly to send back
     store = library_result_store(_LIBRARY) if key is not None else None
     if store is not None and key is not None:

@@ -30,6 +30,7 @@ from cad_replacement.cad.asset_files import MESH_SUFFIXES, default_model_id, fin
 from cad_replacement.cad.feature_types import ModelFeatures
 from cad_replacement.cad.import_meta import load_model_meta
 from cad_replacement.cad.model import CadModel
+from cad_replacement.cad.model_store import ModelStore
 from cad_replacement.cad.params import ParamValue
 from cad_replacement.cad.procedural import (
     CLASS_BUILDERS,
@@ -275,9 +276,29 @@ class CadLibrary:
         if hit is not None:
             self._models.move_to_end(key)
             return hit
-        model = self._build(entry)
+        store = self.model_store if entry.kind == "procedural" else None
+        model = store.load(entry, lambda: self.features(entry)) if store is not None else None
+        if model is None:
+            model = self._build(entry)
         self._remember(key, model)
         return model
+
+    @property
+    def model_store(self) -> ModelStore | None:
+        """Built procedural models with their collision shapes (``model_store``), beside the feature cache."""
+        if not isinstance(self.cache_dir, Path):
+            return None
+        folder = self.cache_dir.parent / "cad_models" if self.cache_dir.name == "cad_features" \
+            else self.cache_dir / "models"
+        return ModelStore(folder, self.digest)
+
+    def keep_model(self, entry: CadEntry) -> None:
+        """Store the entry's built model with its collision shapes (computed now if they were not) for
+        the next process: a worker does it for the model it chose, so that the process that checks and
+        exports the scene reads it instead of building it (procedural models only; once per model)."""
+        store = self.model_store if entry.kind == "procedural" else None
+        if store is not None and not store.has(entry):
+            store.save(entry, self.model(entry))
 
     def _remember(self, key: str, model: CadModel) -> None:
         self._models[key] = model

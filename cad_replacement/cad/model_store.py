@@ -1,0 +1,147 @@
+"""``ModelStore``: built procedural models, with their collision shapes, on disk for the next process.
+
+A command-line ``replace`` is a new process each time. Its fits come back from the result store, but
+the chosen models were built again in the main process (the exact unions of their parts, 10-15 ms a
+model) and their collision shapes computed again (a cup's wall is 32 convex hulls: 0.1 s a cup) before
+the physical check and the export could run: 0.3-0.8 s of a warm run, after the fits of a first run.
+A worker that chose a model now stores it here, collisions included, and ``CadLibrary.model`` reads
+it back.
+
+A file is named by the library's digest of the entry (the model's definition and the cache
+versions) and holds plain arrays and one JSON header (no pickle): the links' meshes, colours and
+collision shapes, the joints, the parameters. Restored models are the built ones number for number
+(floats pass through JSON as their shortest repr, which reads back exactly). Written atomically
+(temp + rename); a damaged, foreign or older file is rebuilt from the definition, never trusted.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+from numpy.typing import NDArray
+
+from cad_replacement.cad.feature_types import ModelFeatures
+from cad_replacement.cad.model import CadModel, Link
+from recon_core.kinematic_tree import CollisionShape, Joint
+
+log = logging.getLogger(__name__)
+
+#: Bump when what is stored (or how a model is rebuilt from it) changes: older files are then ignored.
+MODEL_STORE_VERSION = 1
+_FORMAT = "scene_recon.cad_model"
+
+
+def model_arrays(model: CadModel) -> dict[str, NDArray[Any]]:
+    """A model with every link's collision shapes (computed here if they were not) as plain arrays."""
+    out: dict[str, NDArray[Any]] = {}
+    links = []
+    for i, lk in enumerate(model.links):
+        if lk.inertial is not None:
+            raise ValueError(f"link {lk.name!r} has an inertial: not a procedural model")
+        out[f"l{i}_v"] = np.asarray(lk.mesh.vertices, dtype=np.float64)
+        out[f"l{i}_f"] = np.asarray(lk.mesh.faces, dtype=np.int64)
+        shapes = lk.collisions
+        record: dict[str, Any] = {"name": lk.name, "color": None if lk.color is None else list(lk.color),
+                                  "collisions": None}
+        if shapes is not None:
+            record["collisions"] = [{"kind": s.kind, "radius": s.radius, "length": s.length,
+                                     "mesh": s.mesh is not None} for s in shapes]
+            for j, s in enumerate(shapes):
+                out[f"l{i}_c{j}_origin"] = np.asarray(s.origin, dtype=np.float64)
+                out[f"l{i}_c{j}_size"] = np.asarray(s.size, dtype=np.float64)
+                if s.mesh is not None:
+                    out[f"l{i}_c{j}_v"] = np.asarray(s.mesh.vertices, dtype=np.float64)
+                    out[f"l{i}_c{j}_f"] = np.asarray(s.mesh.faces, dtype=np.int64)
+        links.append(record)
+    joints = []
+    for i, jt in enumerate(model.joints):
+        joints.append({"name": jt.name, "type": jt.type, "parent": jt.parent, "child": jt.child,
+                       "lower": jt.lower, "upper": jt.upper, "effort": jt.effort, "velocity": jt.velocity})
+        out[f"j{i}_origin"] = np.asarray(jt.origin, dtype=np.float64)
+        out[f"j{i}_axis"] = np.asarray(jt.axis, dtype=np.float64)
+    header = {"format": _FORMAT, "version": MODEL_STORE_VERSION, "class_name": model.class_name,
+              "model_id": model.model_id, "params": dict(model.params), "source": model.source,
+              "links": links, "joints": joints}
+    out["header"] = np.array(json.dumps(header, allow_nan=False))
+    return out
+
+
+def restore_model(data: dict[str, NDArray[Any]], features: ModelFeatures) -> CadModel:
+    """The model ``model_arrays`` stored (with ``features``: the library's for the entry)."""
+    header = json.loads(str(data["header"]))
+    if header.get("format") != _FORMAT or header.get("version") != MODEL_STORE_VERSION:
+        raise ValueError(f"not a version-{MODEL_STORE_VERSION} model file")
+    links = []
+    for i, rec in enumerate(header["links"]):
+        mesh = trimesh.Trimesh(data[f"l{i}_v"], data[f"l{i}_f"], process=False)
+        shapes: tuple[CollisionShape, ...] | None = None
+        if rec["collisions"] is not None:
+            shapes = tuple(
+                CollisionShape(c["kind"], origin=data[f"l{i}_c{j}_origin"], size=data[f"l{i}_c{j}_size"],
+                               radius=float(c["radius"]), length=float(c["length"]),
+                               mesh=trimesh.Trimesh(data[f"l{i}_c{j}_v"], data[f"l{i}_c{j}_f"], process=False)
+                               if c["mesh"] else None)
+                for j, c in enumerate(rec["collisions"]))
+        color = None if rec["color"] is None else tuple(float(v) for v in rec["color"])
+        links.append(Link(rec["name"], mesh, color, shapes))  # type: ignore[arg-type]
+    joints = [Joint(name=j["name"], type=j["type"], parent=j["parent"], child=j["child"],
+                    origin=data[f"j{i}_origin"], axis=data[f"j{i}_axis"], lower=float(j["lower"]),
+                    upper=float(j["upper"]), effort=float(j["effort"]), velocity=float(j["velocity"]))
+              for i, j in enumerate(header["joints"])]
+    return CadModel(class_name=header["class_name"], model_id=header["model_id"], links=tuple(links),
+                    joints=tuple(joints), features=features, params=header["params"], source=header["source"])
+
+
+@dataclass
+class ModelStore:
+    """Folder of ``<digest>_m<version>.npz`` model files (``digest``: the library's, per entry)."""
+
+    folder: Path
+    digest: Callable[[Any], str]
+
+    def path(self, entry: Any) -> Path:
+        return self.folder / f"{self.digest(entry)}_m{MODEL_STORE_VERSION}.npz"
+
+    def has(self, entry: Any) -> bool:
+        return self.path(entry).is_file()
+
+    def load(self, entry: Any, features: Callable[[], ModelFeatures]) -> CadModel | None:
+        path = self.path(entry)
+        if not path.is_file():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                data = {k: npz[k] for k in npz.files}
+            return restore_model(data, features())
+        except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
+            log.warning("model store %s unreadable (%s): building the model", path, exc)
+            return None
+
+    def save(self, entry: Any, model: CadModel) -> None:
+        path = self.path(entry)
+        tmp: Path | None = None
+        try:
+            arrays = model_arrays(model)
+            self.folder.mkdir(parents=True, exist_ok=True)
+            fd, name = tempfile.mkstemp(prefix=path.stem, suffix=".tmp", dir=self.folder)
+            tmp = Path(name)
+            with os.fdopen(fd, "wb") as fh:
+                np.savez(fh, **arrays)  # type: ignore[arg-type]
+            os.replace(tmp, path)
+        except (OSError, ValueError, TypeError) as exc:  # a read-only or full cache costs speed, never a run
+            log.warning("model store %s not written (%s)", path, exc)
+            if tmp is not None:
+                tmp.unlink(missing_ok=True)
+
+
+__all__ = ["MODEL_STORE_VERSION", "ModelStore", "model_arrays", "restore_model"]
