@@ -37,43 +37,75 @@ from recon_core.kinematic_tree import CollisionShape, Joint
 log = logging.getLogger(__name__)
 
 #: Bump when what is stored (or how a model is rebuilt from it) changes: older files are then ignored.
-MODEL_STORE_VERSION = 1
+MODEL_STORE_VERSION = 2
 _FORMAT = "scene_recon.cad_model"
 
 
+def _concat(arrays: list[NDArray[Any]], width: int, dtype: Any) -> NDArray[Any]:
+    return np.concatenate(arrays).astype(dtype, copy=False) if arrays else np.zeros((0, width), dtype)
+
+
 def model_arrays(model: CadModel) -> dict[str, NDArray[Any]]:
-    """A model with every link's collision shapes (computed here if they were not) as plain arrays."""
-    out: dict[str, NDArray[Any]] = {}
+    """A model with every link's collision shapes (computed here if they were not) as a few plain arrays
+    (the meshes concatenated, with their vertex and face counts: an npz member costs 0.3 ms to read)."""
     links = []
-    for i, lk in enumerate(model.links):
+    verts, faces, counts = [], [], []
+    c_origin, c_size, c_verts, c_faces, c_counts = [], [], [], [], []
+    for lk in model.links:
         if lk.inertial is not None:
             raise ValueError(f"link {lk.name!r} has an inertial: not a procedural model")
-        out[f"l{i}_v"] = np.asarray(lk.mesh.vertices, dtype=np.float64)
-        out[f"l{i}_f"] = np.asarray(lk.mesh.faces, dtype=np.int64)
+        verts.append(np.asarray(lk.mesh.vertices, dtype=np.float64))
+        faces.append(np.asarray(lk.mesh.faces, dtype=np.int64))
+        counts.append((len(verts[-1]), len(faces[-1])))
         shapes = lk.collisions
         record: dict[str, Any] = {"name": lk.name, "color": None if lk.color is None else list(lk.color),
                                   "collisions": None}
         if shapes is not None:
             record["collisions"] = [{"kind": s.kind, "radius": s.radius, "length": s.length,
                                      "mesh": s.mesh is not None} for s in shapes]
-            for j, s in enumerate(shapes):
-                out[f"l{i}_c{j}_origin"] = np.asarray(s.origin, dtype=np.float64)
-                out[f"l{i}_c{j}_size"] = np.asarray(s.size, dtype=np.float64)
+            for s in shapes:
+                c_origin.append(np.asarray(s.origin, dtype=np.float64))
+                c_size.append(np.asarray(s.size, dtype=np.float64))
                 if s.mesh is not None:
-                    out[f"l{i}_c{j}_v"] = np.asarray(s.mesh.vertices, dtype=np.float64)
-                    out[f"l{i}_c{j}_f"] = np.asarray(s.mesh.faces, dtype=np.int64)
+                    c_verts.append(np.asarray(s.mesh.vertices, dtype=np.float64))
+                    c_faces.append(np.asarray(s.mesh.faces, dtype=np.int64))
+                    c_counts.append((len(c_verts[-1]), len(c_faces[-1])))
+                else:
+                    c_counts.append((0, 0))
         links.append(record)
-    joints = []
-    for i, jt in enumerate(model.joints):
-        joints.append({"name": jt.name, "type": jt.type, "parent": jt.parent, "child": jt.child,
-                       "lower": jt.lower, "upper": jt.upper, "effort": jt.effort, "velocity": jt.velocity})
-        out[f"j{i}_origin"] = np.asarray(jt.origin, dtype=np.float64)
-        out[f"j{i}_axis"] = np.asarray(jt.axis, dtype=np.float64)
+    joints = [{"name": jt.name, "type": jt.type, "parent": jt.parent, "child": jt.child, "lower": jt.lower,
+               "upper": jt.upper, "effort": jt.effort, "velocity": jt.velocity} for jt in model.joints]
     header = {"format": _FORMAT, "version": MODEL_STORE_VERSION, "class_name": model.class_name,
               "model_id": model.model_id, "params": dict(model.params), "source": model.source,
               "links": links, "joints": joints}
-    out["header"] = np.array(json.dumps(header, allow_nan=False))
-    return out
+    return {
+        "header": np.array(json.dumps(header, allow_nan=False)),
+        "v": _concat(verts, 3, np.float64), "f": _concat(faces, 3, np.int64),
+        "counts": np.array(counts, dtype=np.int64).reshape(-1, 2),
+        "c_origin": np.array(c_origin, dtype=np.float64).reshape(-1, 4, 4),
+        "c_size": np.array(c_size, dtype=np.float64).reshape(-1, 3),
+        "c_v": _concat(c_verts, 3, np.float64), "c_f": _concat(c_faces, 3, np.int64),
+        "c_counts": np.array(c_counts, dtype=np.int64).reshape(-1, 2),
+        "j_origin": np.array([jt.origin for jt in model.joints], dtype=np.float64).reshape(-1, 4, 4),
+        "j_axis": np.array([jt.axis for jt in model.joints], dtype=np.float64).reshape(-1, 3),
+    }
+
+
+class _Cursor:
+    """Reads consecutive meshes out of concatenated vertex and face arrays."""
+
+    def __init__(self, vertices: NDArray[Any], faces: NDArray[Any]) -> None:
+        self.vertices, self.faces = vertices, faces
+        self.v = self.f = 0
+
+    def mesh(self, n_vertices: int, n_faces: int) -> trimesh.Trimesh:
+        v = self.vertices[self.v:self.v + n_vertices].copy()
+        f = self.faces[self.f:self.f + n_faces].copy()
+        if len(v) != n_vertices or len(f) != n_faces:
+            raise ValueError("model file: mesh arrays shorter than their counts")
+        self.v += n_vertices
+        self.f += n_faces
+        return trimesh.Trimesh(v, f, process=False)
 
 
 def restore_model(data: dict[str, NDArray[Any]], features: ModelFeatures) -> CadModel:
@@ -81,21 +113,26 @@ def restore_model(data: dict[str, NDArray[Any]], features: ModelFeatures) -> Cad
     header = json.loads(str(data["header"]))
     if header.get("format") != _FORMAT or header.get("version") != MODEL_STORE_VERSION:
         raise ValueError(f"not a version-{MODEL_STORE_VERSION} model file")
+    meshes = _Cursor(data["v"], data["f"])
+    pieces = _Cursor(data["c_v"], data["c_f"])
+    counts, c_counts = data["counts"], data["c_counts"]
+    k = 0  # collision shapes read so far
     links = []
     for i, rec in enumerate(header["links"]):
-        mesh = trimesh.Trimesh(data[f"l{i}_v"], data[f"l{i}_f"], process=False)
-        shapes: tuple[CollisionShape, ...] | None = None
+        mesh = meshes.mesh(int(counts[i, 0]), int(counts[i, 1]))
+        shapes: list[CollisionShape] | None = None
         if rec["collisions"] is not None:
-            shapes = tuple(
-                CollisionShape(c["kind"], origin=data[f"l{i}_c{j}_origin"], size=data[f"l{i}_c{j}_size"],
-                               radius=float(c["radius"]), length=float(c["length"]),
-                               mesh=trimesh.Trimesh(data[f"l{i}_c{j}_v"], data[f"l{i}_c{j}_f"], process=False)
-                               if c["mesh"] else None)
-                for j, c in enumerate(rec["collisions"]))
+            shapes = []
+            for c in rec["collisions"]:
+                piece = pieces.mesh(int(c_counts[k, 0]), int(c_counts[k, 1])) if c["mesh"] else None
+                shapes.append(CollisionShape(c["kind"], origin=data["c_origin"][k], size=data["c_size"][k],
+                                             radius=float(c["radius"]), length=float(c["length"]), mesh=piece))
+                k += 1
         color = None if rec["color"] is None else tuple(float(v) for v in rec["color"])
-        links.append(Link(rec["name"], mesh, color, shapes))  # type: ignore[arg-type]
+        links.append(Link(rec["name"], mesh, color,  # type: ignore[arg-type]
+                          None if shapes is None else tuple(shapes)))
     joints = [Joint(name=j["name"], type=j["type"], parent=j["parent"], child=j["child"],
-                    origin=data[f"j{i}_origin"], axis=data[f"j{i}_axis"], lower=float(j["lower"]),
+                    origin=data["j_origin"][i], axis=data["j_axis"][i], lower=float(j["lower"]),
                     upper=float(j["upper"]), effort=float(j["effort"]), velocity=float(j["velocity"]))
               for i, j in enumerate(header["joints"])]
     return CadModel(class_name=header["class_name"], model_id=header["model_id"], links=tuple(links),
@@ -123,7 +160,7 @@ class ModelStore:
             with np.load(path, allow_pickle=False) as npz:
                 data = {k: npz[k] for k in npz.files}
             return restore_model(data, features())
-        except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile) as exc:
+        except (OSError, ValueError, KeyError, TypeError, IndexError, zipfile.BadZipFile) as exc:
             log.warning("model store %s unreadable (%s): building the model", path, exc)
             return None
 
