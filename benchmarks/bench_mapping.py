@@ -21,6 +21,7 @@ subprocesses, `--rounds` times, and reports the best round of each and their rat
     .venv/bin/python benchmarks/bench_mapping.py --cost-model [--bag GENERATED_BAG] [--frames 120]
     .venv/bin/python benchmarks/bench_mapping.py --cost-model --compare-root /work/wt_base --rounds 3
     .venv/bin/python benchmarks/bench_mapping.py --digest [--scenes bench-small bench-kitchen] [--frames 120]
+    .venv/bin/python benchmarks/bench_mapping.py --cost-model --segment-ahead 0   # no second process
 
 `--digest`: the sha256 of each scene's map state after mapping (oracle at `default` noise, default preset:
 every voxel attribute, the counts, the merge votes, the keyframe state) and of its extracted entities;
@@ -314,7 +315,8 @@ def _best(rounds: list[dict]) -> dict:
     return best
 
 
-def compare_roots(roots: dict[str, Path], bag: Path, frames: int, rounds: int) -> dict:
+def compare_roots(roots: dict[str, Path], bag: Path, frames: int, rounds: int,
+                  segment_ahead: int | None = None) -> dict:
     """The cost model of each checkout (name -> repository root) in alternating subprocesses."""
     out: dict[str, list[dict]] = {k: [] for k in roots}
     names = list(roots)
@@ -324,7 +326,7 @@ def compare_roots(roots: dict[str, Path], bag: Path, frames: int, rounds: int) -
             root = roots[name]
             env = {**os.environ, "PYTHONPATH": str(root), "SCENE_RECON_CONFIG_DIR": str(root / "config")}
             cmd = [sys.executable, str(Path(__file__).resolve()), "--cost-model-worker", str(root), "--bag", str(bag),
-                   "--frames", str(frames)]
+                   "--frames", str(frames)] + ([] if segment_ahead is None else ["--segment-ahead", str(segment_ahead)])
             res = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True)
             r = json.loads(res.stdout.strip().splitlines()[-1])
             out[name].append(r)
@@ -347,7 +349,8 @@ def cost_model_main(args: argparse.Namespace) -> int:
         print(f"wrote {write_result('mapping_cost_model', r)}")
         return 0
     here = Path(__file__).resolve().parent.parent
-    res = compare_roots({"before": args.compare_root.resolve(), "after": here}, bag, frames, args.rounds)
+    res = compare_roots({"before": args.compare_root.resolve(), "after": here}, bag, frames, args.rounds,
+                        args.segment_ahead)
     before, after = res["before"]["best"], res["after"]["best"]
     for name, r in (("before", before), ("after", after)):
         print_cost_model(r, f"{name} (best of {args.rounds} rounds): ")
@@ -373,11 +376,19 @@ def main() -> int:
     ap.add_argument("--bag", type=Path, default=None, help="cost model: a generated bag instead of a suite scene")
     ap.add_argument("--compare-root", type=Path, default=None, help="cost model: also run this checkout's code")
     ap.add_argument("--rounds", type=int, default=3, help="cost model with --compare-root: alternating rounds")
+    ap.add_argument("--segment-ahead", type=int, default=None, metavar="N",
+                    help="cost model / digest: frames whose depth segmentation may run ahead on the worker process "
+                    "(panoptic_mapping.pipeline.SEGMENT_AHEAD; 0: none, every frame segmented on the mapper's thread)")
     ap.add_argument("--digest", action="store_true", help="sha256 of each scene's map state and entities (see above)")
     ap.add_argument("--cost-model-worker", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.cost_model_worker is not None:  # a subprocess of --compare-root: that checkout's code first
         sys.path.insert(0, str(args.cost_model_worker))
+    if args.segment_ahead is not None:
+        import panoptic_mapping.pipeline as pipeline
+
+        pipeline.SEGMENT_AHEAD = args.segment_ahead  # (an older checkout: set but unused)
+    if args.cost_model_worker is not None:
         print(json.dumps(cost_model(args.bag, args.frames)))
         return 0
     if args.cost_model:
