@@ -41,6 +41,45 @@ if TYPE_CHECKING:  # the fits' modules (Open3D, trimesh, scipy: 1-2 s) load wher
 
 log = logging.getLogger(__name__)
 
+
+class _DocAsIs:
+    """Stands in for SciPy's numpydoc parser in ``skip_scipy_docstring_notes``: the docstring stays as written."""
+
+    def __init__(self, func: Any, *args: Any, **kwargs: Any) -> None:
+        self._doc = getattr(func, "__doc__", None) or ""
+        self._sections: dict[str, list[str]] = {}
+
+    def __getitem__(self, key: str) -> list[str]:
+        return self._sections.setdefault(key, [])
+
+    def __setitem__(self, key: str, value: Any) -> None:
+        self._sections[key] = value
+
+    def __str__(self) -> str:
+        return "\n" + self._doc  # the caller drops the first line (the signature numpydoc writes)
+
+
+def skip_scipy_docstring_notes() -> None:
+    """SciPy (1.15+) rewrites the docstring of each of its ~360 array-API functions as they are imported
+    (numpydoc parses it to append a table of supported array backends): 0.1-0.3 CPU s of every process
+    that imports trimesh or the fits (the command line, the fork server). Only help text reads those
+    notes; with this their docstrings stay as SciPy wrote them. Call before SciPy's submodules load (a
+    no-op where SciPy has no such step)."""
+    try:
+        from scipy._lib import _array_api
+    except ImportError:
+        return
+    if hasattr(_array_api, "FunctionDoc") and hasattr(_array_api, "xp_capabilities"):
+        _array_api.FunctionDoc = _DocAsIs
+
+
+#: Set for the fork server (``_single_threaded_children``): this module is the first it loads, so the CAD
+#: code it preloads imports SciPy without the docstring step. (The command line calls the function itself,
+#: after it has started the fork server: NumPy's and SciPy's imports must not delay that.)
+_SKIP_SCIPY_DOCS = "SCENE_RECON_SKIP_SCIPY_DOCS"
+if os.environ.get(_SKIP_SCIPY_DOCS) == "1":
+    skip_scipy_docstring_notes()
+
 #: What the fork server imports once, so that every worker forked from it starts warm.
 _PRELOAD = ("cad_replacement.replace_object", "cad_replacement.geometry_cache", "scene_graph.blas")
 
@@ -109,13 +148,14 @@ _THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS
 @contextlib.contextmanager
 def _single_threaded_children() -> Iterator[None]:
     """Processes started in this block (the fork server, the workers) load their BLAS and OpenMP
-    runtimes with one thread; this process's own environment is restored after.
+    runtimes with one thread (and SciPy without its docstring step: ``skip_scipy_docstring_notes``);
+    this process's own environment is restored after.
 
     Setting the thread count once they are loaded (``single_blas_thread``) did not do it: bench-kitchen
     with 2 workers took 2.9-3.6 s that way, 2.7-2.9 s with the workers started single-threaded, and
     2.1-2.6 s with this process's Open3D on one thread as well (``open3d_threads``)."""
-    saved = {k: os.environ.get(k) for k in _THREAD_VARIABLES}
-    os.environ.update({k: "1" for k in _THREAD_VARIABLES})
+    saved = {k: os.environ.get(k) for k in (*_THREAD_VARIABLES, _SKIP_SCIPY_DOCS)}
+    os.environ.update({k: "1" for k in (*_THREAD_VARIABLES, _SKIP_SCIPY_DOCS)})
     try:
         yield
     finally:

@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     # left every result in the store (then no worker is needed: the fits are read back).
     from cad_replacement.replace_config import CadReplacementConfig
     from cad_replacement.result_store import default_store_dir
-    from cad_replacement.workers import prestart_fork_server, resolve_workers
+    from cad_replacement.workers import prestart_fork_server, resolve_workers, skip_scipy_docstring_notes
     from recon_core.config import build_config, preset_overrides
     from recon_core.errors import InputError
 
@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     marker = default_store_dir() / "inputs" / _input_fingerprint(graph_file, nodes_dir, cad_cfg, args)
     if n_workers > 1 and not marker.is_file():
         prestart_fork_server()
+    skip_scipy_docstring_notes()  # SciPy's import-time docstring rewriting (0.1-0.3 s): help text only
     from scene_recon.cli import import_open3d
 
     import_open3d()  # without its Plotly viewer's Dash and Plotly (0.4 s)

@@ -129,3 +129,27 @@ def test_thread_limits_apply_in_their_block_only():
         assert o3d.utility.get_max_threads() == 1
     assert [getter() for _setter, getter in libs] == before
     assert o3d.utility.get_max_threads() == o3d_before
+
+
+def test_the_fork_server_and_the_command_line_import_scipy_without_its_docstring_step(room):
+    """``skip_scipy_docstring_notes``: SciPy's functions work and keep the docstrings SciPy wrote; the
+    workers (forked from the fork server, which loads ``cad_replacement.workers`` first) have it too."""
+    import subprocess
+    import sys
+
+    _graph, _nodes, library = room
+    pool = ReplaceWorkers(library, 2)
+    try:
+        started = pool._ensure()
+        assert started is not None
+        probe = "__import__('scipy._lib._array_api', fromlist=['_']).FunctionDoc.__name__"
+        assert started.submit(eval, probe).result(timeout=60) == "_DocAsIs"
+    finally:
+        pool.close()
+    code = ("from cad_replacement.workers import skip_scipy_docstring_notes; skip_scipy_docstring_notes(); "
+            "import numpy as np, scipy.special, scipy.spatial; from scipy._lib import _array_api; "
+            "assert _array_api.FunctionDoc.__name__ == '_DocAsIs'; "
+            "assert abs(scipy.special.logsumexp(np.zeros(4)) - np.log(4)) < 1e-12; "
+            "assert scipy.spatial.cKDTree(np.eye(3)).query([1, 0, 0])[1] == 0; "
+            "assert scipy.special.logsumexp.__doc__ and 'Parameters' in scipy.special.logsumexp.__doc__")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
