@@ -73,6 +73,10 @@ def run(gt: GroundTruthScene, library: CadLibrary, method: str) -> dict[str, Any
         figures = evaluate_scene(result.scene, {r.name: r.to_dict() for r in result.records}, gt, library, None)
     cad = sum(1 for r in result.records if r.kind == "cad")
     per = figures["per_object"]
+    seen = {o["name"] for o in per}
+    reasons = {r.name: r.reason or r.message for r in result.records}
+    unmatched = [f"{e.name}: {reasons.get(e.name) or 'placed elsewhere'}" for e in gt.entities
+                 if e.model_seed is not None and e.name not in seen]
     joints = sum(o["joints_total"] for o in per)
     return {
         "objects": len(per), "ground_truth_objects": figures["ground_truth_objects"],
@@ -80,6 +84,7 @@ def run(gt: GroundTruthScene, library: CadLibrary, method: str) -> dict[str, Any
         "front_flips": sum(1 for o in per if o["front_flip"]),
         "joints": joints, "axis_ok": sum(o["axis_ok"] for o in per), "value_ok": sum(o["value_ok"] for o in per),
         "seconds": seconds, "per_object_s": seconds / max(cad, 1), "per_object_cpu_s": cpu / max(cad, 1),
+        "unmatched": unmatched,
         "failures": [{k: o[k] for k in ("name", "class_name", "chosen", "symmetry", "translation_error",
                                         "yaw_error_deg", "size_error", "front_flip", "joints_total", "axis_ok",
                                         "value_ok")}
@@ -116,6 +121,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"{row['per_object_s'] * 1000:.0f} ms/object ({row['per_object_cpu_s'] * 1000:.0f} ms CPU)",
                   flush=True)
             if not args.quiet:
+                for u in row["unmatched"]:
+                    print(f"    not matched: {u}", flush=True)
                 for f in row["failures"]:
                     print(f"    {f['name']:22s} {f['chosen']:52s} t {100 * (f['translation_error'] or 0):5.1f} cm "
                           f"yaw {f['yaw_error_deg'] or 0:5.1f} size {f['size_error'] or 0:.2f} sym {f['symmetry']} "

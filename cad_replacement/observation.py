@@ -338,12 +338,68 @@ def front_direction_from_context(
     return dirs[best].copy()
 
 
+#: ``handle_side``: surface more than ``HANDLE_PROUD`` (m) and less than ``HANDLE_SLAB`` before a box side's
+#: plane (the outermost depth holding much of the surface facing out there), over that face, is proud of it: handles,
+#: an open door's edge, a pulled-out drawer. The side holding at least ``HANDLE_MIN_AREA`` (m^2) of it and
+#: ``HANDLE_DOMINANCE`` times any other side's is the front.
+HANDLE_SLAB = 0.08
+HANDLE_PROUD = 0.008
+HANDLE_MIN_AREA = 0.002
+HANDLE_DOMINANCE = 3.0
+#: Surface samples drawn on the observed mesh for ``handle_side``.
+HANDLE_SIDE_SAMPLES = 20000
+#: ... a side's plane is the outermost 5 mm layer of surface facing out holding this share of the largest.
+HANDLE_LAYER = 0.3
+
+
+def handle_side(mesh: trimesh.Trimesh | None, box: GravityBox) -> NDArray[np.float64] | None:
+    """Unit xy direction of the box side whose surface has something proud of it (the handles of doors and
+    drawers, a door or drawer open), or ``None`` when no side clearly does (see ``HANDLE_DOMINANCE``).
+
+    An articulated object's front shows itself where it was observed: the context's free space alone
+    (``front_direction_from_context``) points out of either free side of a corner (issue 23: an oven in a
+    corner matched sideways, its handle on the side the hint did not name)."""
+    if mesh is None or len(mesh.faces) == 0 or mesh.area <= 0.0:
+        return None
+    samples, faces = trimesh.sample.sample_surface(mesh, HANDLE_SIDE_SAMPLES, seed=0)
+    pts = np.asarray(samples, dtype=np.float64)
+    nrm = np.asarray(mesh.face_normals[faces], dtype=np.float64)
+    per_sample = float(mesh.area) / HANDLE_SIDE_SAMPLES
+    dirs = _side_directions(box)
+    area = np.zeros(4)
+    for k, d in enumerate(dirs):
+        s = pts[:, :2] @ d
+        facing = nrm[:, :2] @ d > 0.9
+        if np.count_nonzero(facing) < 10:
+            continue
+        # The side's plane: the outermost depth holding a good part of the surface facing out there (5 mm
+        # bins; a door's inside faces the back too, and the shelves behind it would be proud of it). Its extent
+        # (across and up) bounds what counts as proud of it: a door open 80 degrees lies beyond the
+        # carcass's side, not over it.
+        hist, edges = np.histogram(s[facing], bins=max(1, int(np.ptp(s[facing]) / 0.005) + 1))
+        top = int(np.flatnonzero(hist >= HANDLE_LAYER * hist.max())[-1])
+        plane = 0.5 * float(edges[top] + edges[top + 1])
+        face = facing & (np.abs(s - plane) <= 0.005)
+        across = pts[:, :2] @ dirs[(k + 1) % 4]
+        over = (across >= across[face].min()) & (across <= across[face].max()) \
+            & (pts[:, 2] >= pts[face, 2].min()) & (pts[:, 2] <= pts[face, 2].max())
+        proud = over & (s > plane + HANDLE_PROUD) & (s < plane + HANDLE_SLAB)
+        area[k] = float(np.count_nonzero(proud)) * per_sample
+    best = int(np.argmax(area))
+    others = np.delete(area, best)
+    if area[best] < HANDLE_MIN_AREA or area[best] < HANDLE_DOMINANCE * float(others.max()):
+        return None
+    return dirs[best].copy()
+
+
 __all__ = [
+    "HANDLE_MIN_AREA",
     "MIN_POINTS",
     "ObjectObservation",
     "ObservationError",
     "carried_footprint_points",
     "clean_entity_points",
     "front_direction_from_context",
+    "handle_side",
     "side_clearances",
 ]

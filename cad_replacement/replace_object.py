@@ -31,13 +31,15 @@ from typing import Protocol
 
 import numpy as np
 import open3d.core as o3c
+import trimesh
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from cad_replacement.cad.feature_types import ModelFeatures
 from cad_replacement.cad.layouts import layout_variants
 from cad_replacement.cad.library import CadEntry
 from cad_replacement.cad.model import CadModel
-from recon_core.classes import ClassTable
+from recon_core.classes import ClassTable, UnknownClassError
 
 from .alignment import (
     AlignmentError,
@@ -53,7 +55,7 @@ from .alignment import (
 from .articulation import ArticulationResult, estimate_joint_values
 from .geometry_cache import GeometryCache, library_store
 from .matching import MatchCandidate, candidate_classes, default_class_table, match_candidates, observed_planes
-from .observation import ObjectObservation
+from .observation import ObjectObservation, handle_side
 from .replace_config import CadReplacementConfig
 
 EPS = 1e-12
@@ -212,6 +214,14 @@ def replace_object(
     with ``chosen=None`` and a message.
     """
     cfg = config or CadReplacementConfig()
+    if cfg.method == "ours" and _articulated(observation.class_name, class_table):
+        # Doors and drawers show where the front is (their handles, a part open): where that was observed it
+        # beats the context's hint from free space, which names either free side of a corner (issue 23).
+        seen = _observed_front(observation)
+        if seen is not None:
+            # ... and a model turned away from its handles must fit much better to win (not a veto).
+            observation = dataclasses.replace(observation, front_hint=seen)
+            cfg = dataclasses.replace(cfg, front_ae_factor=cfg.front_ae_factor * OBSERVED_FRONT_FACTOR)
     cache = cache if cache is not None else GeometryCache(library.model, samples=cfg.ae_model_samples,
                                                                    store=library_store(library))
     timings: dict[str, float] = {}
@@ -263,6 +273,28 @@ def replace_object(
         base.articulation = chosen.articulation
     timings["total"] = time.perf_counter() - t_all
     return base
+
+
+#: The selection's front factor (``front_ae_factor``) is this many times larger when the front was observed
+#: (``observation.handle_side``) rather than guessed from free space: a cabinet seen with its four drawers
+#: pulled out matched turned 90 degrees (AE 18 mm: the carcass stretched over the drawers) against 32 mm
+#: facing its handles (bench-office, unseen library); at 4x a quarter turn costs 2x, a half turn 3x.
+OBSERVED_FRONT_FACTOR = 4.0
+
+
+def _observed_front(obs: ObjectObservation) -> NDArray[np.float64] | None:
+    """``observation.handle_side`` of the observed mesh (None without one: a handle is a few of the
+    observation's points, too few to tell it from a door's edge)."""
+    if obs.mesh is None or len(obs.mesh.faces) == 0:
+        return None
+    return handle_side(obs.mesh, obs.gravity_box)
+
+
+def _articulated(class_name: str, table: ClassTable | None) -> bool:
+    try:
+        return (table or default_class_table()).by_name(class_name).category == "articulated"
+    except UnknownClassError:
+        return False
 
 
 #: A part counts as open (``_front_unexplained``) beyond this angle (revolute) or shift (prismatic).
@@ -452,6 +484,22 @@ class _FullFit:
             self.t_art += time.perf_counter() - ta
         return _final_error(self.prepared, geom, pl, values, self.cfg, scaled).ae
 
+    def quick_front_error(self, m: MatchCandidate, geom: ModelGeometry, x: NDArray[np.float64]) -> float:
+        """``front_error`` at the screened pose ``x`` with joint values estimated there (no LM)."""
+        pl = AlignmentProblem(geom, m.rotation, self.bottom, self.prepared.fit_points, self.cfg).placement(x)
+        scaled = geom.bare_model.scaled(pl.scale)
+        values: dict[str, float] = {}
+        if geom.model.movable_joints:
+            ta = time.perf_counter()
+            values = estimate_joint_values(self.prepared.fit_points, scaled, pl.pose, self.cfg).values
+            self.t_art += time.perf_counter() - ta
+        return self.front_error(geom, pl, values, scaled)
+
+    def front_error(self, geom: ModelGeometry, placement: Placement, values: dict[str, float],
+                    scaled: CadModel | None = None) -> float:
+        """``front_error`` against this observation."""
+        return front_error(self.prepared, geom, placement, values, scaled)
+
     def fit(self, m: MatchCandidate, geom: ModelGeometry, x: NDArray[np.float64], cost: float,
             nfev: int) -> CandidateResult:
         prepared, cfg, bottom = self.prepared, self.cfg, self.bottom
@@ -500,6 +548,92 @@ class _FullFit:
         ae = _final_error(prepared, geom, pl, values, cfg, scaled)
         score2 = ae.ae * _selection_factor(m, cfg) * _distortion_factor(pl.scale)
         return CandidateResult(m, pl, ae, score2, values, "full", cost2, nfev + nfev2, art)
+
+
+#: Front layouts are told apart by their handles (``front_error``): a door's bar stands by its opening edge,
+#: a drawer's across its middle, one per front, so where the handles are says which fronts there are and
+#: which side a door opens. The whole-object AE cannot tell closed fronts apart: it also scores what lies
+#: behind them (a drawer's box, a shelf, the board over a row of doors where the observation reaches
+#: inside), which the carcass of another model gets wrong whatever its front (on a cabinet with two doors
+#: under two drawers, a three-row chest of drawers on the library's carcass scored 5.7 mm against 8.5 mm
+#: for the right layout; issue 23), and the fronts' planes of two models lie a few mm apart.
+#: Handles: surface within ``FRONT_SLAB`` (m) behind the closed model's front and more than
+#: ``HANDLE_PROUD`` (m) before the front's plane (the median depth of the front-facing surface there).
+FRONT_SLAB = 0.08
+HANDLE_PROUD = 0.008
+#: A handle point is explained by one of the other side within ``HANDLE_REACH`` (m) in the front's plane.
+HANDLE_REACH = 0.03
+#: ... and the observation must show at least this many handle points (else NaN: no handles seen).
+HANDLE_MIN_POINTS = 20
+#: Surface samples drawn on the posed model for its handles.
+HANDLE_SAMPLES = 4000
+
+
+def _front_samples(mesh: trimesh.Trimesh, placement: Placement, x_front: float,
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``HANDLE_SAMPLES`` surface samples (map frame) and normals of the faces of a map-frame mesh within
+    ``FRONT_SLAB`` behind the front or before it (model frame of ``placement``)."""
+    centres = (np.asarray(mesh.triangles_center) - placement.translation) @ placement.rotation
+    keep = np.flatnonzero(centres[:, 0] > x_front - FRONT_SLAB)
+    if len(keep) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    part = trimesh.Trimesh(mesh.vertices, mesh.faces[keep], process=False)
+    if part.area <= 0.0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    samples, faces = trimesh.sample.sample_surface(part, HANDLE_SAMPLES, seed=0)
+    return np.asarray(samples), np.asarray(part.face_normals[faces])
+
+
+def _handles(points: NDArray[np.float64], normals: NDArray[np.float64], placement: Placement,
+             x_front: float) -> NDArray[np.float64]:
+    """(y, z) in the model frame of the points proud of the front's plane (see ``FRONT_SLAB``)."""
+    if len(points) == 0:
+        return np.zeros((0, 2))
+    local = (points - placement.translation) @ placement.rotation
+    slab = local[:, 0] > x_front - FRONT_SLAB
+    facing = slab & (normals @ placement.rotation[:, 0] > 0.9)
+    if not facing.any():
+        return np.zeros((0, 2))
+    plane = float(np.median(local[facing, 0]))
+    return local[slab & (local[:, 0] > plane + HANDLE_PROUD)][:, 1:]
+
+
+def front_error(prepared: PreparedObservation, geom: ModelGeometry, placement: Placement,
+                values: dict[str, float], scaled: CadModel | None = None) -> float:
+    """How badly the model's handles and the observed ones miss each other (0 = every handle point of each
+    has one of the other within ``HANDLE_REACH`` in the front's plane, 2 = none has): the share of the
+    observed handle points without a model handle point near, plus the share of the model's without an
+    observed one. Both surfaces are sampled densely at the front (the observation's mesh; without one, its
+    points). NaN when the observation shows no handles there (fewer than ``HANDLE_MIN_POINTS`` points)."""
+    obs = prepared.obs
+    scaled = scaled if scaled is not None else geom.bare_model.scaled(placement.scale)
+    x_front = float(scaled.mesh().bounds[1, 0])
+    if obs.mesh is not None and len(obs.mesh.faces):
+        seen = _handles(*_front_samples(obs.mesh, placement, x_front), placement, x_front)
+    elif obs.normals is not None:
+        seen = _handles(obs.points, obs.normals, placement, x_front)
+    else:
+        return float("nan")
+    if len(seen) < HANDLE_MIN_POINTS:
+        return float("nan")
+    rigid = Placement(placement.rotation, placement.translation, np.ones(3))
+    mesh = scaled.mesh(values)
+    posed = trimesh.Trimesh(rigid.apply(np.asarray(mesh.vertices, dtype=np.float64)), mesh.faces, process=False)
+    model = _handles(*_front_samples(posed, placement, x_front), placement, x_front)
+    if len(model) == 0:
+        return 2.0
+    d_seen, _ = cKDTree(model).query(seen)
+    d_model, _ = cKDTree(seen).query(model)
+    return float(np.mean(d_seen > HANDLE_REACH) + np.mean(d_model > HANDLE_REACH))
+
+
+def _parts_open(best: CandidateResult, geom: ModelGeometry) -> bool:
+    """Whether the candidate has a door or drawer open (beyond ``LAYOUT_OPEN_ANGLE`` / ``LAYOUT_OPEN_SHIFT``)."""
+    for j in geom.model.movable_joints:
+        tol = LAYOUT_OPEN_ANGLE if j.type == "revolute" else LAYOUT_OPEN_SHIFT
+        if abs(best.joint_values.get(j.name, j.zero_value) - j.zero_value) > tol:
+            return True
+    return False
 
 
 def _front_unexplained(best: CandidateResult, geom: ModelGeometry, prepared: PreparedObservation,
@@ -585,7 +719,7 @@ def _layout_search(results: Sequence[CandidateResult], screened_x: dict[int, NDA
             break
         if all(_yaw_gap(r.yaw, b.yaw) > LAYOUT_YAW_TOL for b in bases):
             bases.append(r)
-    out = []
+    searched = []
     for best in bases:
         x = screened_x.get(id(best.match))
         variants = layout_variants(best.match.entry)
@@ -593,17 +727,40 @@ def _layout_search(results: Sequence[CandidateResult], screened_x: dict[int, NDA
             continue
         if best is not full[0] and not _front_unexplained(best, cache.get(best.match.entry), fitter.prepared, cfg):
             continue
+        base_geom = cache.get(best.match.entry)
+        searched.append((best, x, variants, base_geom, fitter.quick_front_error(best.match, base_geom, x)))
+    # Handles seen at one base's front and not at another's: the latter faces the wrong way (a carcass
+    # turned sideways, its drawers pulled out to cover the depth), and no layout of it is the object's.
+    handles_seen = any(np.isfinite(it[4]) for it in searched)
+    out = []
+    for best, x, variants, base_geom, base_front in searched:
+        # A closed front is ranked by its handles (``front_error``); with a part open (its handle turned away,
+        # the part's own geometry in view) by the AE, which sees where the open parts are.
+        is_open = _parts_open(best, base_geom)
+        by_front = bool(np.isfinite(base_front)) and not is_open
+        if not np.isfinite(base_front) and (handles_seen or not is_open):
+            continue  # no handles in view at this front: nothing tells its layout, or it is not the front
         ranked: list[tuple[float, MatchCandidate, ModelGeometry]] = []
         for entry in variants:
             geom = cache.get(entry)
             m = dataclasses.replace(best.match, entry=entry)
-            ranked.append((fitter.quick_error(m, geom, x), m, geom))
+            err = fitter.quick_front_error(m, geom, x) if by_front else fitter.quick_error(m, geom, x)
+            if by_front and not (err < (1.0 - cfg.layout_margin) * base_front):
+                continue  # the library model's own front explains the observed one at least as well
+            ranked.append((err, m, geom))
         ranked.sort(key=lambda it: it[0])
+        base_full_front = fitter.front_error(base_geom, best.placement, best.joint_values) \
+            if by_front else float("nan")
         for _err, m, geom in ranked[:cfg.layout_fits]:
             r = fitter.fit(m, geom, x.copy(), 0.0, 0)
             if _yaw_gap(r.yaw, best.yaw) > LAYOUT_YAW_TOL:
                 continue
             r.score *= 1.0 + cfg.layout_margin
+            if by_front and fitter.front_error(geom, r.placement, r.joint_values) \
+                    < (1.0 - cfg.layout_margin) * base_full_front:
+                # Same carcass, a front that explains the observed one better: it takes the library model's
+                # place in the ranking (the AE also scores what lies behind the front, which the carcass sets).
+                r.score = min(r.score, best.score * (1.0 - 1e-3))
             out.append(r)
     return out
 

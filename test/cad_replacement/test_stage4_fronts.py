@@ -134,16 +134,21 @@ def test_the_layout_search_never_replaces_a_library_model_that_explains_the_obje
 
 def test_a_layout_variant_never_turns_the_carcass_sideways(tmp_path_factory: pytest.TempPathFactory) -> None:
     """gen-7373's two-door cabinet against a library holding one two-drawer cabinet: the best fit was the
-    carcass turned 90 degrees with its drawers pulled out 28 cm, and its three-drawer layout won there."""
+    carcass turned 90 degrees with its drawers pulled out 28 cm, and its three-drawer layout won there. The
+    observed mesh (as the replacer passes it) shows the handles: they name the front whatever the context's
+    hint says, and the layout with the object's two doors is found at that front."""
     library = SeededLibrary(cache_dir=tmp_path_factory.mktemp("cab9"), seeds_per_class=0, classes=["cabinet"],
                             extra_seeds={"cabinet": [9]})
     model = build_model("cabinet", 1411409028)
     pose = yaw_pose(0.0, (1.0, -0.5, 0.0))
-    obs, _ = observe_model(model, pose, {}, np.random.default_rng(0), half=False)
-    obs = dataclasses.replace(obs, front_hint=np.array([0.0, 1.0]))  # the corner's other free side
+    obs, mesh = observe_model(model, pose, {}, np.random.default_rng(0), half=False)
+    # the corner's other free side
+    obs = dataclasses.replace(obs, front_hint=np.array([0.0, 1.0]), mesh=mesh)
     rep = replace_object(obs, library, CadReplacementConfig(workers=1))
     ev = evaluate_object(rep, model, pose, {})
     assert ev.yaw_error_deg < 5.0 and ev.pose_success, (ev.chosen, ev.yaw_error_deg)
+    assert rep.model is not None and [j.type for j in rep.model.movable_joints] == ["revolute"] * 2, ev.chosen
+    assert ev.axis_ok == 2
     for cand in rep.candidates:  # every variant kept its base's orientation
         if "@" in cand.key:
             base = next(c for c in rep.candidates if c.key == cand.key.split("@")[0] and c.stage == "full"
