@@ -29,10 +29,11 @@ Every file is written atomically (``recon_core.io``); every number must be finit
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from collections.abc import Callable, Iterable, Mapping
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -226,10 +227,18 @@ def subtree(tree: KinematicTree, root: str, *, name: str | None = None, cut_floa
 
 # ---------------------------------------------------------------------------- MJCF
 def _quat(rotation: NDArray[np.float64]) -> NDArray[np.float64]:
+    return _quat_of(np.ascontiguousarray(rotation, dtype=np.float64).tobytes())
+
+
+@functools.lru_cache(maxsize=1024)
+def _quat_of(rotation: bytes) -> NDArray[np.float64]:
+    """The quaternion of a rotation given by its bytes (most shapes of a scene share a few rotations: an
+    eigen-decomposition each had cost 0.1-0.2 s a scene); the array is read only, shared by callers."""
     m = np.eye(4)
-    m[:3, :3] = rotation
-    q = trimesh.transformations.quaternion_from_matrix(m)  # w, x, y, z (MuJoCo's order)
-    return np.asarray(q, dtype=np.float64)
+    m[:3, :3] = np.frombuffer(rotation, dtype=np.float64).reshape(3, 3)
+    q = np.asarray(trimesh.transformations.quaternion_from_matrix(m), dtype=np.float64)  # w, x, y, z (MuJoCo's)
+    q.setflags(write=False)
+    return q
 
 
 def _frame_attrs(t: NDArray[np.float64]) -> str:
@@ -415,21 +424,32 @@ def export_scene(scene: ReplacedScene, out_dir: str | Path, *, class_table: Clas
         glb_path = write_bytes_atomic(out / "scene.glb", scene_glb(tree))
         if on_glb is not None:
             on_glb(glb_path)
-    _write_meshes(tree, out / MESH_DIR, "stl")
-    urdf = tree.to_urdf(out, mesh_dir=MESH_DIR, filename="scene.urdf", write_meshes=False)
-    movable = [j.child for j in tree.joints if j.type == "floating"]
-    static = subtree(tree, tree.root, name=f"{tree.name}_static")
-    static_urdf = static.to_urdf(out, mesh_dir=MESH_DIR, filename="static.urdf", write_meshes=False)
-    object_urdfs = {}
-    for link in movable:
-        part = subtree(tree, link, name=link)
-        text = part.urdf_text(out / MESH_DIR, f"../{MESH_DIR}/", "stl", write_meshes=False)
-        object_urdfs[link] = write_text_atomic(out / OBJECTS_DIR / f"{link}.urdf", text)
-    link_of = dict(zip([o.name for o in scene], _root_link_names(scene, tree), strict=True))
-    object_of = {link: name for name, link in link_of.items()}
-    states = write_text_atomic(out / "joint_states.json",
-                               json.dumps(_poses_json(tree, movable, link_of), indent=1, allow_nan=False))
-    mjcf = write_text_atomic(out / "scene.xml", mjcf_text(tree, MESH_DIR, "stl", mjcf_options))
+    # every file below is written atomically with an fsync: the mesh files and the documents go to writer
+    # threads (the fsyncs overlap each other and the documents' text, which this thread builds meanwhile)
+    with ThreadPoolExecutor(MESH_WRITERS, thread_name_prefix="scene-writer") as pool:
+        writes = _submit_meshes(pool, tree, out / MESH_DIR, "stl")
+
+        def write(path: Path, text: str) -> Path:
+            writes.append(pool.submit(write_text_atomic, path, text))
+            return path
+
+        urdf = write(out / "scene.urdf", tree.urdf_text(out / MESH_DIR, f"{MESH_DIR}/", "stl", write_meshes=False))
+        movable = [j.child for j in tree.joints if j.type == "floating"]
+        static = subtree(tree, tree.root, name=f"{tree.name}_static")
+        static_urdf = write(out / "static.urdf",
+                            static.urdf_text(out / MESH_DIR, f"{MESH_DIR}/", "stl", write_meshes=False))
+        object_urdfs = {}
+        for link in movable:
+            part = subtree(tree, link, name=link)
+            text = part.urdf_text(out / MESH_DIR, f"../{MESH_DIR}/", "stl", write_meshes=False)
+            object_urdfs[link] = write(out / OBJECTS_DIR / f"{link}.urdf", text)
+        link_of = dict(zip([o.name for o in scene], _root_link_names(scene, tree), strict=True))
+        object_of = {link: name for name, link in link_of.items()}
+        states = write(out / "joint_states.json",
+                       json.dumps(_poses_json(tree, movable, link_of), indent=1, allow_nan=False))
+        mjcf = write(out / "scene.xml", mjcf_text(tree, MESH_DIR, "stl", mjcf_options))
+        for future in writes:
+            future.result()  # the first error, as writing them in turn would raise it
     return ExportResult(
         folder=out, urdf=urdf, mjcf=mjcf, glb=glb_path, joint_states=states, static_urdf=static_urdf,
         object_urdfs={object_of[link]: p for link, p in object_urdfs.items()},
@@ -445,8 +465,8 @@ def export_scene(scene: ReplacedScene, out_dir: str | Path, *, class_table: Clas
 MESH_WRITERS = 8
 
 
-def _write_meshes(tree: KinematicTree, folder: Path, mesh_format: str) -> None:
-    """Every mesh file ``KinematicTree.to_urdf`` references (the same names and bytes), written in parallel."""
+def _submit_meshes(pool: ThreadPoolExecutor, tree: KinematicTree, folder: Path, mesh_format: str) -> list[Future[Any]]:
+    """Jobs of ``pool`` writing every mesh file ``KinematicTree.to_urdf`` references (same names and bytes)."""
     link_names, _ = tree.safe_names()
     # one job per mesh object (a mesh two links share is written by one thread: trimesh fills its
     # caches on first use)
@@ -461,16 +481,14 @@ def _write_meshes(tree: KinematicTree, folder: Path, mesh_format: str) -> None:
                 jobs.setdefault(id(shape.mesh), (shape.mesh, []))[1].append(
                     folder / f"{name}_collision_{k}.{mesh_format}")
     if not jobs:
-        return
+        return []
     folder.mkdir(parents=True, exist_ok=True)
 
     def write(mesh: trimesh.Trimesh, paths: list[Path]) -> None:
         for path in paths:
             export_mesh_file(mesh, path, mesh_format)
 
-    with ThreadPoolExecutor(min(MESH_WRITERS, len(jobs)), thread_name_prefix="mesh-writer") as pool:
-        for future in [pool.submit(write, mesh, paths) for mesh, paths in jobs.values()]:
-            future.result()  # the first error, as writing them in turn would raise it
+    return [pool.submit(write, mesh, paths) for mesh, paths in jobs.values()]
 
 
 def _root_link_names(scene: ReplacedScene, tree: KinematicTree) -> list[str]:
