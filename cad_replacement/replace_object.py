@@ -219,9 +219,7 @@ def replace_object(
         # beats the context's hint from free space, which names either free side of a corner (issue 23).
         seen = _observed_front(observation)
         if seen is not None:
-            # ... and a model turned away from its handles must fit much better to win (not a veto).
             observation = dataclasses.replace(observation, front_hint=seen)
-            cfg = dataclasses.replace(cfg, front_ae_factor=cfg.front_ae_factor * OBSERVED_FRONT_FACTOR)
     cache = cache if cache is not None else GeometryCache(library.model, samples=cfg.ae_model_samples,
                                                                    store=library_store(library))
     timings: dict[str, float] = {}
@@ -273,13 +271,6 @@ def replace_object(
         base.articulation = chosen.articulation
     timings["total"] = time.perf_counter() - t_all
     return base
-
-
-#: The selection's front factor (``front_ae_factor``) is this many times larger when the front was observed
-#: (``observation.handle_side``) rather than guessed from free space: a cabinet seen with its four drawers
-#: pulled out matched turned 90 degrees (AE 18 mm: the carcass stretched over the drawers) against 32 mm
-#: facing its handles (bench-office, unseen library); at 4x a quarter turn costs 2x, a half turn 3x.
-OBSERVED_FRONT_FACTOR = 4.0
 
 
 def _observed_front(obs: ObjectObservation) -> NDArray[np.float64] | None:
@@ -563,6 +554,10 @@ FRONT_SLAB = 0.08
 HANDLE_PROUD = 0.008
 #: A handle point is explained by one of the other side within ``HANDLE_REACH`` (m) in the front's plane.
 HANDLE_REACH = 0.03
+#: A variant is fitted only when its ``front_error`` is at most this (on average half of each side's handle
+#: points near one of the other's); the right layouts of the protocol's closed fronts scored 0-0.25, the
+#: others 1.1-2.
+FRONT_GOOD = 1.0
 #: ... and the observation must show at least this many handle points (else NaN: no handles seen).
 HANDLE_MIN_POINTS = 20
 #: Surface samples drawn on the posed model for its handles.
@@ -745,8 +740,10 @@ def _layout_search(results: Sequence[CandidateResult], screened_x: dict[int, NDA
             geom = cache.get(entry)
             m = dataclasses.replace(best.match, entry=entry)
             err = fitter.quick_front_error(m, geom, x) if by_front else fitter.quick_error(m, geom, x)
-            if by_front and not (err < (1.0 - cfg.layout_margin) * base_front):
-                continue  # the library model's own front explains the observed one at least as well
+            if by_front and not (err < (1.0 - cfg.layout_margin) * base_front and err <= FRONT_GOOD):
+                # the library model's own front explains the observed one at least as well, or the variant's
+                # handles miss the observed ones as badly (a carcass stretched 1.46x puts every handle elsewhere)
+                continue
             ranked.append((err, m, geom))
         ranked.sort(key=lambda it: it[0])
         base_full_front = fitter.front_error(base_geom, best.placement, best.joint_values) \

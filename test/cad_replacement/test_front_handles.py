@@ -88,3 +88,21 @@ def test_a_closed_front_takes_the_layout_its_handles_show(tmp_path_factory: pyte
     assert sorted(j.type for j in rep.model.movable_joints) == ["prismatic", "prismatic", "revolute", "revolute"], \
         ev.chosen
     assert ev.axis_ok == ev.value_ok == 4
+
+
+def test_a_front_whose_handles_no_variant_matches_keeps_the_library_model(
+        tmp_path_factory: pytest.TempPathFactory) -> None:
+    """gen-8686's cabinet (a door under a drawer, closed) against the library's model of that front stretched
+    1.46x in height: every layout's handles miss the observed ones, and a five-drawer chest had won on the
+    inside's AE (4.0 mm against 14.2 mm)."""
+    library = SeededLibrary(cache_dir=tmp_path_factory.mktemp("cab17"), seeds_per_class=0, classes=["cabinet"],
+                            extra_seeds={"cabinet": [17]})
+    model = build_model("cabinet", 1465919913)
+    pose = yaw_pose(0.0, (1.0, -0.5, 0.0))
+    obs, mesh = observe_model(model, pose, {}, np.random.default_rng(0), half=False)
+    obs = type(obs)(obs.entity_id, obs.name, obs.class_name, obs.points, normals=obs.normals,
+                    support_z=obs.support_z, front_hint=np.array([1.0, 0.0]), mesh=mesh)
+    rep = replace_object(obs, library, CadReplacementConfig(workers=1))
+    ev = evaluate_object(rep, model, pose, {})
+    assert ev.pose_success and rep.chosen is not None and "@" not in rep.chosen.key, ev.chosen
+    assert ev.axis_ok == ev.value_ok == 2
