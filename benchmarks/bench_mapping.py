@@ -21,6 +21,7 @@ subprocesses, `--rounds` times, and reports the best round of each and their rat
     .venv/bin/python benchmarks/bench_mapping.py --cost-model [--bag GENERATED_BAG] [--frames 120]
     .venv/bin/python benchmarks/bench_mapping.py --cost-model --compare-root /work/wt_base --rounds 3
     .venv/bin/python benchmarks/bench_mapping.py --digest [--scenes bench-small bench-kitchen] [--frames 120]
+    .venv/bin/python benchmarks/bench_mapping.py --digest --compare-root /work/wt_base   # before/after identical?
     .venv/bin/python benchmarks/bench_mapping.py --cost-model --segment-ahead 0   # no second process
 
 `--digest`: the sha256 of each scene's map state after mapping (oracle at `default` noise, default preset:
@@ -367,6 +368,38 @@ def cost_model_main(args: argparse.Namespace) -> int:
     return 0
 
 
+def digest_main(args: argparse.Namespace, suite_scene) -> int:  # type: ignore[no-untyped-def]
+    """`--digest`; with `--compare-root`, that checkout's maps too (a subprocess with its code first) and
+    whether each scene's digests are equal."""
+    scenes = args.scenes or ["bench-small", "bench-kitchen"]
+    if args.cost_model_worker is not None or args.compare_root is None:
+        import panoptic_mapping
+
+        code = Path(panoptic_mapping.__file__).resolve().parent.parent
+        if args.cost_model_worker is not None and code != args.cost_model_worker.resolve():
+            raise SystemExit(f"the digest of {args.cost_model_worker} would be of {code}'s code")
+        for name in scenes:
+            bag, _gt = suite_scene(name, progress=False)
+            print(json.dumps({"scene": name, **map_digest(bag, args.frames or 120)}), flush=True)
+        return 0
+    root = args.compare_root.resolve()
+    env = {**os.environ, "PYTHONPATH": str(root), "SCENE_RECON_CONFIG_DIR": str(root / "config")}
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--digest", "--cost-model-worker", str(root),
+           "--frames", str(args.frames or 120), "--scenes", *scenes]
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True)
+    before = {r["scene"]: r for r in (json.loads(x) for x in res.stdout.splitlines() if x.startswith("{"))}
+    same = True
+    for name in scenes:
+        bag, _gt = suite_scene(name, progress=False)
+        after = map_digest(bag, args.frames or 120)
+        b = before[name]
+        eq = {k: b[k] == after[k] for k in ("map_state_sha256", "entities_sha256", "frames", "entities")}
+        same &= all(eq.values())
+        print(f"{name}: {'identical' if all(eq.values()) else 'DIFFERENT ' + json.dumps(eq)} "
+              f"(map state {after['map_state_sha256'][:16]}, entities {after['entities_sha256'][:16]})", flush=True)
+    return 0 if same else 1
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", nargs="*", default=None)
@@ -388,7 +421,7 @@ def main() -> int:
         import panoptic_mapping.pipeline as pipeline
 
         pipeline.SEGMENT_AHEAD = args.segment_ahead  # (an older checkout: set but unused)
-    if args.cost_model_worker is not None:
+    if args.cost_model_worker is not None and not args.digest:
         print(json.dumps(cost_model(args.bag, args.frames)))
         return 0
     if args.cost_model:
@@ -396,10 +429,7 @@ def main() -> int:
     from scene_recon.synthetic.suite import SUITE, suite_scene
 
     if args.digest:
-        for name in args.scenes or ["bench-small", "bench-kitchen"]:
-            bag, _gt = suite_scene(name, progress=False)
-            print(json.dumps({"scene": name, **map_digest(bag, args.frames or 120)}), flush=True)
-        return 0
+        return digest_main(args, suite_scene)
 
     args.scenes = args.scenes or list(SUITE)
     results: dict[str, dict] = {}

@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import os
 import pickle
+import queue
 import signal
 import struct
 import subprocess
@@ -376,6 +377,10 @@ class SegmentationWorker:
         self._pending: list[Future] = []
         self._lock = threading.Lock()
         self._reader: threading.Thread | None = None
+        # jobs go to the process from a thread of their own: a pipe holds 64 KiB, so writing a depth image
+        # blocks until the worker reads it, i.e. until it has finished the job before (seen in the node)
+        self._jobs: queue.SimpleQueue[tuple | None] = queue.SimpleQueue()
+        self._writer: threading.Thread | None = None
         self.broken = False
         #: CPU seconds of the worker's segmentations so far (its process's, not the caller's CPU time)
         self.cpu_s = 0.0
@@ -388,7 +393,19 @@ class SegmentationWorker:
             self._reader = threading.Thread(target=self._read, args=(self._proc,), name="depth-seg-reader",
                                             daemon=True)
             self._reader.start()
+            self._jobs = queue.SimpleQueue()
+            self._writer = threading.Thread(target=self._write, args=(self._proc, self._jobs),
+                                            name="depth-seg-writer", daemon=True)
+            self._writer.start()
         return self._proc
+
+    def _write(self, proc: subprocess.Popen[bytes], jobs: queue.SimpleQueue[tuple | None]) -> None:
+        while (job := jobs.get()) is not None:
+            try:
+                _send(proc.stdin, job)
+            except (OSError, ValueError) as exc:  # the process is gone: the reader fails what is pending
+                log.debug("depth segmentation worker: job not sent (%s)", exc)
+                return
 
     def _read(self, proc: subprocess.Popen[bytes]) -> None:
         while True:
@@ -426,11 +443,10 @@ class SegmentationWorker:
             fut.set_exception(RuntimeError("depth segmentation worker unavailable"))
             return fut
         try:
-            proc = self._start()
+            self._start()
             with self._lock:
                 self._pending.append(fut)
-            assert proc.stdin is not None
-            _send(proc.stdin, (depth, intr, cfg, pixel_area_scale))
+            self._jobs.put((depth, intr, cfg, pixel_area_scale))
         except (OSError, ValueError) as exc:
             log.warning("depth segmentation worker unavailable (%s): segmenting on the mapper's thread", exc)
             self._fail(exc)
@@ -448,6 +464,9 @@ class SegmentationWorker:
         proc, self._proc = self._proc, None
         if proc is None:
             return
+        self._jobs.put(None)
+        if self._writer is not None:
+            self._writer.join(timeout=30)
         try:
             if proc.stdin is not None:
                 proc.stdin.close()

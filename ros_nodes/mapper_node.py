@@ -48,6 +48,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import hashlib
+import itertools
 import json
 import sys
 import threading
@@ -268,6 +269,10 @@ class MapperNode(Node):
         self.queue: collections.deque[tuple[Image, Image, float]] = collections.deque()
         self.pending: list[_Pending] = []
         self.counters = collections.Counter()
+        self._drop_warned_at = -1e9
+        #: depth segmentations started ahead for queued frames (`_segment_queued`): id of the depth message ->
+        #: (that message, the intrinsics used, `segment_ahead`'s result)
+        self._ahead: dict[int, tuple] = {}
         # for /diagnostics: the input rate, recent latencies, the newest error (the counts are `counters`)
         self.input_rate = diag.RateWindow()
         self.integrate_ms = diag.LatencyWindow()
@@ -383,10 +388,13 @@ class MapperNode(Node):
         while len(self.queue) > self.max_queue:  # cannot keep up: drop the oldest, keep the newest
             self.queue.popleft()
             self.counters["dropped_backlog"] += 1
-            self.get_logger().warning(
-                f"mapper cannot keep up: oldest queued frame dropped ({self.counters['dropped_backlog']} dropped "
-                f"so far, {self.counters['integrated']} integrated; queue {self.max_queue})",
-                throttle_duration_sec=5.0)
+            # throttled here: rclpy's own throttle inspects the caller's source on every call (ms per
+            # dropped frame, taken from the frames that are still mapped)
+            if time.monotonic() - self._drop_warned_at >= 5.0:
+                self._drop_warned_at = time.monotonic()
+                self.get_logger().warning(
+                    f"mapper cannot keep up: oldest queued frame dropped ({self.counters['dropped_backlog']} "
+                    f"dropped so far, {self.counters['integrated']} integrated; queue {self.max_queue})")
 
     def _make_frame(self, color_msg: Image, depth_msg: Image) -> RGBDFrame | None:
         stamp = stamp_to_ns(depth_msg.header.stamp)
@@ -493,6 +501,8 @@ class MapperNode(Node):
     def _route(self, frame: RGBDFrame, color_msg: Image, depth_msg: Image) -> None:
         """A posed frame to the map: skipped when the camera stood still, sent for labels when it is a
         keyframe (integrated when they arrive), integrated at once otherwise."""
+        entry = self._ahead.pop(id(depth_msg), None)  # its depth segmentation, if started while it was queued
+        ahead = entry[2] if entry is not None and entry[0] is depth_msg and entry[1] == frame.intrinsics else None
         if self.mapper.is_static(frame):  # a still camera: the frame adds nothing (static.* of the config)
             self.counters["static_frames"] += 1
             return
@@ -504,7 +514,7 @@ class MapperNode(Node):
                 self.mapper.mark_keyframe(frame)
                 req = SegmentImage.Request(color=color_msg, has_depth=True, depth=depth_msg)
                 self.pending.append(_Pending(frame, color_msg, depth_msg, self.seg_client.call_async(req),
-                                             time.monotonic(), segment_ahead(self.mapper, frame)))
+                                             time.monotonic(), ahead or segment_ahead(self.mapper, frame)))
                 self.counters["segmentation_calls"] += 1
                 return
             else:  # not marked: the next frames stay keyframe candidates until the service is up
@@ -512,7 +522,37 @@ class MapperNode(Node):
                 self.get_logger().warning("segmentation service not available: mapping geometry only",
                                           throttle_duration_sec=10.0)
         # without segmentation no label is ever fused: the TSDF-only path (no depth segmentation)
-        self._integrate(frame, None, geometry_only=not self.use_segmentation)
+        if self.use_segmentation:
+            self._segment_queued()
+        self._integrate(frame, None, geometry_only=not self.use_segmentation, segments=ahead)
+
+    #: Queued frames whose depth segmentation may start on the worker process before their turn.
+    SEGMENT_AHEAD = 3
+
+    def _segment_queued(self) -> None:
+        """Start the depth segmentation of the next queued frames that the label cadence will make label
+        frames (`keyframes.label_every_n_frames`) on the worker process (issue 26): with a backlog, it runs
+        on the second core while this thread maps the frames before. A guess that misses costs only the
+        worker's time; the result is used only for that very message with the same intrinsics."""
+        n = self.mapper.config.keyframes.label_every_n_frames
+        queued = list(itertools.islice(self.queue, self.SEGMENT_AHEAD))
+        live = {id(d) for _c, d, _t in queued}
+        self._ahead = {k: v for k, v in self._ahead.items() if k in live}
+        if n <= 0 or self.info is None or not queued:
+            return
+        try:
+            intr = camera_info_to_intrinsics(self.info)
+        except DatasetError:
+            return
+        for i, (_color, depth_msg, _t) in enumerate(queued):
+            if id(depth_msg) in self._ahead or (self.mapper.frames_integrated + i + 1) % n:
+                continue
+            try:
+                depth, _bad = image_to_depth(depth_msg)
+                frame = RGBDFrame(np.broadcast_to(np.zeros(3, np.uint8), (*depth.shape[:2], 3)), depth, intr, None, 0)
+            except DatasetError:
+                continue
+            self._ahead[id(depth_msg)] = (depth_msg, intr, segment_ahead(self.mapper, frame))
 
     def _snapshot(self) -> MapSnapshot:
         """A copy of the map to write (caller holds the map's turn); a gravity check still short of its
@@ -705,8 +745,9 @@ class MapperNode(Node):
             if geometry_only:
                 self.mapper.integrate_geometry(frame)
             else:
-                self.mapper.integrate(frame, masks, ahead_segments(segments, self.mapper,
-                                                                              self.mapper.fuses_labels(masks)))
+                ahead = ahead_segments(segments, self.mapper, self.mapper.fuses_labels(masks))
+                self.counters["segmented_ahead"] += ahead is not None  # on the worker process (issue 26)
+                self.mapper.integrate(frame, masks, ahead)
             self.counters["integrated"] += 1
             self._changed = True
             self._last_step_failed = False
@@ -784,8 +825,11 @@ class MapperNode(Node):
         self.pub_entities.publish(msg)
         self._published_stamp_ns = _stamp_ns(msg.header.stamp)
         self.counters["publications"] += 1
+        # markers only for a listener (RViz): their per-vertex point objects cost as much as everything else
+        # a publication does (half the node's publishing time in a 30 Hz bag run), and no node reads them
+        if self.pub_markers.get_subscription_count() > 0:
+            self.pub_markers.publish(map_markers(ents, self.output_frame, msg.header.stamp))
         self._next_publish = t0 + (time.monotonic() - t0) / self.PUBLISH_DUTY
-        self.pub_markers.publish(map_markers(ents, self.output_frame, msg.header.stamp))
 
     def _on_graph(self, msg: ContactGraph) -> None:
         self._graph_stamp_ns = _stamp_ns(msg.header.stamp)

@@ -107,6 +107,7 @@ def one_run(bag: str, out: Path, rate: float, live_order: bool, drain_timeout_s:
         "received": c.get("received", 0), "integrated": c.get("integrated", 0),
         "dropped_backlog": c.get("dropped_backlog", 0), "skipped": {k: c[k] for k in SKIPPED if c.get(k)},
         "keyframes_labelled": f"{c.get('segmented_keyframes', 0)}/{c.get('segmentation_calls', 0)}",
+        "segmented_ahead": c.get("segmented_ahead", 0),
         "max_queue": max_queue,
         "first_frame_to_drained_s": round(drained_at - first_frame_at, 2) if drained_at and first_frame_at else None,
         "cpu_s": {k: v.get("cpu_s") for k, v in last_cpu.items()},
@@ -143,7 +144,8 @@ def main() -> int:
         print(f"run {i + 1}: {n} frames played at rate {args.rate}: received {row['received']}, integrated "
               f"{row['integrated']}, dropped (queue full) {row['dropped_backlog']}, skipped {row['skipped']}, "
               f"largest queue {row['max_queue']}, first frame to drained {row['first_frame_to_drained_s']} s "
-              f"(recording {n / 30:.1f} s), keyframes labelled {row['keyframes_labelled']}, CPU s {row['cpu_s']}, "
+              f"(recording {n / 30:.1f} s), keyframes labelled {row['keyframes_labelled']}, segmented ahead "
+              f"{row['segmented_ahead']}, CPU s {row['cpu_s']}, "
               f"load {row['load_before'][0]} -> {row['load_after'][0]}" + (f"; {row['error']}" if "error" in row
                                                                             else ""),
               flush=True)
