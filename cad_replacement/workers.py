@@ -74,11 +74,15 @@ def skip_scipy_docstring_notes() -> None:
 
 
 #: Set for the fork server (``_single_threaded_children``): this module is the first it loads, so the CAD
-#: code it preloads imports SciPy without the docstring step. (The command line calls the function itself,
-#: after it has started the fork server: NumPy's and SciPy's imports must not delay that.)
-_SKIP_SCIPY_DOCS = "SCENE_RECON_SKIP_SCIPY_DOCS"
-if os.environ.get(_SKIP_SCIPY_DOCS) == "1":
+#: code it preloads imports SciPy without the docstring step (the command line calls the function itself,
+#: after it has started the fork server: NumPy's and SciPy's imports must not delay that), and the code's
+#: digest (the result and model stores' keys) is computed once there, not in every worker forked from it.
+_FORK_SERVER = "SCENE_RECON_CAD_FORK_SERVER"
+if os.environ.get(_FORK_SERVER) == "1":
     skip_scipy_docstring_notes()
+    from .result_store import code_digest
+
+    code_digest()
 
 #: What the fork server imports once, so that every worker forked from it starts warm.
 _PRELOAD = ("cad_replacement.replace_object", "cad_replacement.geometry_cache", "scene_graph.blas")
@@ -154,8 +158,8 @@ def _single_threaded_children() -> Iterator[None]:
     Setting the thread count once they are loaded (``single_blas_thread``) did not do it: bench-kitchen
     with 2 workers took 2.9-3.6 s that way, 2.7-2.9 s with the workers started single-threaded, and
     2.1-2.6 s with this process's Open3D on one thread as well (``open3d_threads``)."""
-    saved = {k: os.environ.get(k) for k in (*_THREAD_VARIABLES, _SKIP_SCIPY_DOCS)}
-    os.environ.update({k: "1" for k in (*_THREAD_VARIABLES, _SKIP_SCIPY_DOCS)})
+    saved = {k: os.environ.get(k) for k in (*_THREAD_VARIABLES, _FORK_SERVER)}
+    os.environ.update({k: "1" for k in (*_THREAD_VARIABLES, _FORK_SERVER)})
     try:
         yield
     finally:

@@ -8,7 +8,8 @@ A worker that chose a model now stores it here, collisions included, and ``CadLi
 it back.
 
 A file is named by the library's digest of the entry (the model's definition and the cache
-versions) and holds plain arrays and one JSON header (no pickle): the links' meshes, colours and
+versions) and the code's digest (``result_store.code_digest``: any change of the code is a miss), and
+holds plain arrays and one JSON header (no pickle): the links' meshes, colours and
 collision shapes, the joints, the parameters. Restored models are the built ones number for number
 (floats pass through JSON as their shortest repr, which reads back exactly). Written atomically
 (temp + rename); a damaged, foreign or older file is rebuilt from the definition, never trusted.
@@ -141,13 +142,18 @@ def restore_model(data: dict[str, NDArray[Any]], features: ModelFeatures) -> Cad
 
 @dataclass
 class ModelStore:
-    """Folder of ``<digest>_m<version>.npz`` model files (``digest``: the library's, per entry)."""
+    """Folder of ``<digest>_<code>_m<version>.npz`` model files (``digest``: the library's, per entry;
+    ``code``: the first 16 hex digits of ``result_store.code_digest``)."""
 
     folder: Path
     digest: Callable[[Any], str]
 
     def path(self, entry: Any) -> Path:
-        return self.folder / f"{self.digest(entry)}_m{MODEL_STORE_VERSION}.npz"
+        # the code's digest too (``result_store.code_digest``): the collision shapes come from code that no
+        # model definition's version names (``collision.py``), and a stale shape would be a silent error
+        from cad_replacement.result_store import code_digest
+
+        return self.folder / f"{self.digest(entry)}_{code_digest()[:16]}_m{MODEL_STORE_VERSION}.npz"
 
     def has(self, entry: Any) -> bool:
         return self.path(entry).is_file()
