@@ -50,3 +50,33 @@ def test_replace_writes_a_loadable_scene_folder_and_eval_scene_scores_it(tmp_pat
 def test_replace_says_what_to_run_first(tmp_path, capsys):
     assert main(["replace", str(tmp_path / "nowhere"), "--out", str(tmp_path / "scene")]) == 2
     assert "scene-recon graph" in capsys.readouterr().err
+
+
+def test_replace_writes_the_same_scene_folder_with_the_caches_a_previous_run_left(tmp_path, monkeypatch):
+    """Issue 23 item 4: a second run of the same graph reads its results, models and geometry from the caches
+    the first left (no fit, no model built) and writes the same scene folder, byte for byte (the summary's
+    timings aside)."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    scene = build_scene(14, 5)  # at least ``parallel_min_objects`` (12): the workers and their stores
+    gt_dir = tmp_path / "room_groundtruth"
+    scene.save(gt_dir)
+    assert main(["graph", str(gt_dir), "--out", str(tmp_path / "graph"), "--no-picture"]) == 0
+    outs = [tmp_path / "cold", tmp_path / "warm"]
+    for out in outs:
+        assert main(["replace", str(tmp_path / "graph"), "--out", str(out), "--seeds-per-class", "3"]) == 0
+    assert list((tmp_path / "cache" / "scene_recon" / "cad_models").glob("*.npz"))
+    files = [sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file()) for out in outs]
+    assert files[0] == files[1] and len(files[0]) > 20
+    for rel in files[0]:
+        if rel.name != "replacement.json":
+            assert (outs[0] / rel).read_bytes() == (outs[1] / rel).read_bytes(), rel
+
+    def strip(value):
+        if isinstance(value, dict):
+            return {k: strip(v) for k, v in value.items() if k not in ("timings", "wall_s", "phases_s", "urdf")}
+        return [strip(v) for v in value] if isinstance(value, list) else value
+
+    cold, warm = (json.loads((out / "replacement.json").read_text()) for out in outs)
+    assert strip(cold) == strip(warm)
+    restored = [o for o in warm["objects_detail"] if o["candidates"]]
+    assert restored and all("restored_s" in o["timings"] for o in restored)
