@@ -14,8 +14,6 @@ Files are written atomically (temp + rename); a damaged or foreign file is rebui
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 import zipfile
 from collections import OrderedDict
 from collections.abc import Callable
@@ -29,6 +27,7 @@ from numpy.typing import NDArray
 from cad_replacement.alignment import ModelGeometry, raycasting_scene
 from cad_replacement.cad.library import CadEntry
 from cad_replacement.cad.model import CadModel
+from recon_core.io import write_npz_atomic
 
 log = logging.getLogger(__name__)
 
@@ -118,18 +117,10 @@ class GeometryStore:
         mesh = geom.mesh if geom.mesh is not None else geom.model.mesh()
         arrays = geometry_arrays(geom, mesh, geom.swept)
         path = self.path(entry, samples)
-        tmp: Path | None = None
         try:
-            self.folder.mkdir(parents=True, exist_ok=True)
-            fd, name = tempfile.mkstemp(prefix=path.stem, suffix=".tmp", dir=self.folder)
-            tmp = Path(name)
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **arrays)  # type: ignore[arg-type]
-            os.replace(tmp, path)
+            write_npz_atomic(path, arrays, sync=False)
         except OSError as exc:  # a read-only or full cache folder costs speed, never a run
             log.warning("geometry cache %s not written (%s)", path, exc)
-            if tmp is not None:
-                tmp.unlink(missing_ok=True)
 
 
 @dataclass

@@ -7,21 +7,30 @@ stays intact until the new one is complete.
 
 from __future__ import annotations
 
+import io
 import os
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
+import numpy as np
 
-def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` via a temporary file + rename (POSIX-atomic on one filesystem)."""
+
+def write_bytes_atomic(path: str | Path, data: bytes, *, sync: bool = True) -> Path:
+    """Write ``data`` to ``path`` via a temporary file + rename (POSIX-atomic on one filesystem).
+
+    ``sync=False`` skips the fsync: for caches, where a file lost to a power cut is rebuilt, and the
+    fsync of every entry would cost more than the cache saves; the rename still keeps readers from
+    ever seeing half a file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
+            if sync:
+                fh.flush()
+                os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -34,4 +43,11 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
     return write_bytes_atomic(path, text.encode("utf-8"))
 
 
-__all__ = ["write_bytes_atomic", "write_text_atomic"]
+def write_npz_atomic(path: str | Path, arrays: Mapping[str, np.ndarray], *, sync: bool = True) -> Path:
+    """``write_bytes_atomic`` for an uncompressed ``.npz`` of ``arrays`` (built in memory first)."""
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)  # type: ignore[arg-type]
+    return write_bytes_atomic(path, buf.getvalue(), sync=sync)
+
+
+__all__ = ["write_bytes_atomic", "write_npz_atomic", "write_text_atomic"]

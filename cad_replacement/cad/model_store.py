@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import tempfile
 import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -33,6 +31,7 @@ from numpy.typing import NDArray
 
 from cad_replacement.cad.feature_types import ModelFeatures
 from cad_replacement.cad.model import CadModel, Link
+from recon_core.io import write_npz_atomic
 from recon_core.kinematic_tree import CollisionShape, Joint
 
 log = logging.getLogger(__name__)
@@ -172,19 +171,10 @@ class ModelStore:
 
     def save(self, entry: Any, model: CadModel) -> None:
         path = self.path(entry)
-        tmp: Path | None = None
         try:
-            arrays = model_arrays(model)
-            self.folder.mkdir(parents=True, exist_ok=True)
-            fd, name = tempfile.mkstemp(prefix=path.stem, suffix=".tmp", dir=self.folder)
-            tmp = Path(name)
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **arrays)  # type: ignore[arg-type]
-            os.replace(tmp, path)
+            write_npz_atomic(path, model_arrays(model), sync=False)
         except (OSError, ValueError, TypeError) as exc:  # a read-only or full cache costs speed, never a run
             log.warning("model store %s not written (%s)", path, exc)
-            if tmp is not None:
-                tmp.unlink(missing_ok=True)
 
 
 __all__ = ["MODEL_STORE_VERSION", "ModelStore", "model_arrays", "restore_model"]
