@@ -283,7 +283,8 @@ class MapperNode(Node):
         self._camera_frame = ""
         self._recent = diag.RecentIncrease()
         self._changed = self.mapper.frames_integrated > 0  # a resumed map is published at once
-        self._next_publish = 0.0
+        #: start and cost (monotonic s) of the last publication: the next waits for cost / duty after the start
+        self._last_publish = (0.0, 0.0)
         self._published_revision: dict[int, tuple[str, int]] = {}  # id -> (mesh digest, revision published)
         # entity messages by (id, revision, with mesh): unchanged entities are not converted again
         self._msg_cache: dict[tuple[int, int, bool], object] = {}
@@ -804,11 +805,20 @@ class MapperNode(Node):
     #: every frame changes every entity's mesh, and converting them all at each short period starved
     #: integration and the services.
     PUBLISH_DUTY = 0.3
+    #: ... and this share while frames wait to be integrated (a camera faster than the mapper): every
+    #: publication also makes the contact graph and the CAD replacer rebuild, on the same cores, so the
+    #: consumers see a coarser sequence of maps while the mapper catches up, and the newest map as soon as
+    #: it has (the queue empty, the normal duty again).
+    PUBLISH_DUTY_BEHIND = 0.05
+    #: Frames waiting (a third of a second of a 30 Hz camera) from which the mapper counts as behind.
+    BEHIND_FRAMES = 10
 
     def _publish(self) -> None:
         if not self._changed or self._services_waiting:
             return
-        if time.monotonic() < self._next_publish:
+        start, cost = self._last_publish
+        duty = self.PUBLISH_DUTY_BEHIND if self._queued() >= self.BEHIND_FRAMES else self.PUBLISH_DUTY
+        if time.monotonic() < start + cost / duty:
             return
         t0 = time.monotonic()
         try:
@@ -829,7 +839,7 @@ class MapperNode(Node):
         # a publication does (half the node's publishing time in a 30 Hz bag run), and no node reads them
         if self.pub_markers.get_subscription_count() > 0:
             self.pub_markers.publish(map_markers(ents, self.output_frame, msg.header.stamp))
-        self._next_publish = t0 + (time.monotonic() - t0) / self.PUBLISH_DUTY
+        self._last_publish = (t0, time.monotonic() - t0)
 
     def _on_graph(self, msg: ContactGraph) -> None:
         self._graph_stamp_ns = _stamp_ns(msg.header.stamp)

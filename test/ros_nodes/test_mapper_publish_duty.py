@@ -1,0 +1,58 @@
+"""The mapper node publishes less while frames wait (`MapperNode.PUBLISH_DUTY_BEHIND`): each publication also
+makes the contact graph and the CAD replacer rebuild on the same cores, so a mapper that is behind a camera
+spends its time integrating; with the queue short it publishes at its normal duty."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+mapper_node = pytest.importorskip("ros_nodes.mapper_node")
+
+
+class _Extracted(Exception):
+    pass
+
+
+class _Mapper:
+    def entities(self, with_meshes: bool = True) -> list:
+        raise _Extracted
+
+
+class _Stub:
+    """What `_publish` reads of the node before it extracts entities."""
+
+    PUBLISH_DUTY = mapper_node.MapperNode.PUBLISH_DUTY
+    PUBLISH_DUTY_BEHIND = mapper_node.MapperNode.PUBLISH_DUTY_BEHIND
+    BEHIND_FRAMES = mapper_node.MapperNode.BEHIND_FRAMES
+
+    def __init__(self, queued: int, since_last: float, last_cost: float) -> None:
+        self._changed, self._services_waiting = True, False
+        self._last_publish = (time.monotonic() - since_last, last_cost)
+        self.lock, self.mapper, self.queued = threading.Lock(), _Mapper(), queued
+
+    def _queued(self) -> int:
+        return self.queued
+
+
+def _extracts(stub: _Stub) -> bool:
+    try:
+        mapper_node.MapperNode._publish(stub)  # type: ignore[arg-type]
+    except _Extracted:
+        return True
+    return False
+
+
+def test_a_short_queue_publishes_at_the_normal_duty() -> None:
+    # last publication took 0.2 s and started 1 s ago: 0.2 / 0.3 = 0.67 s have passed
+    assert _extracts(_Stub(queued=0, since_last=1.0, last_cost=0.2))
+    assert _extracts(_Stub(queued=_Stub.BEHIND_FRAMES - 1, since_last=1.0, last_cost=0.2))
+
+
+def test_a_mapper_behind_the_camera_waits_longer_between_publications() -> None:
+    behind = _Stub.BEHIND_FRAMES
+    assert not _extracts(_Stub(queued=behind, since_last=1.0, last_cost=0.2))   # needs 0.2 / 0.05 = 4 s
+    assert _extracts(_Stub(queued=behind, since_last=4.5, last_cost=0.2))
+    assert not _extracts(_Stub(queued=0, since_last=0.3, last_cost=0.2))        # under 0.67 s even when idle
