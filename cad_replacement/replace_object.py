@@ -464,8 +464,9 @@ class _FullFit:
         self.round_weight = round_weight
         self.t_art = 0.0
 
-    def quick_error(self, m: MatchCandidate, geom: ModelGeometry, x: NDArray[np.float64]) -> float:
-        """AE at the screened pose ``x`` with joint values estimated there (no LM): ranks variants."""
+    def _at_screened_pose(self, m: MatchCandidate, geom: ModelGeometry, x: NDArray[np.float64]
+                          ) -> tuple[Placement, CadModel, dict[str, float]]:
+        """(placement, scaled model, joint values estimated there) at the screened pose ``x`` (no LM)."""
         pl = AlignmentProblem(geom, m.rotation, self.bottom, self.prepared.fit_points, self.cfg).placement(x)
         scaled = geom.bare_model.scaled(pl.scale)
         values: dict[str, float] = {}
@@ -473,17 +474,16 @@ class _FullFit:
             ta = time.perf_counter()
             values = estimate_joint_values(self.prepared.fit_points, scaled, pl.pose, self.cfg).values
             self.t_art += time.perf_counter() - ta
+        return pl, scaled, values
+
+    def quick_error(self, m: MatchCandidate, geom: ModelGeometry, x: NDArray[np.float64]) -> float:
+        """AE at the screened pose ``x`` with joint values estimated there (no LM): ranks variants."""
+        pl, scaled, values = self._at_screened_pose(m, geom, x)
         return _final_error(self.prepared, geom, pl, values, self.cfg, scaled).ae
 
     def quick_front_error(self, m: MatchCandidate, geom: ModelGeometry, x: NDArray[np.float64]) -> float:
         """``front_error`` at the screened pose ``x`` with joint values estimated there (no LM)."""
-        pl = AlignmentProblem(geom, m.rotation, self.bottom, self.prepared.fit_points, self.cfg).placement(x)
-        scaled = geom.bare_model.scaled(pl.scale)
-        values: dict[str, float] = {}
-        if geom.model.movable_joints:
-            ta = time.perf_counter()
-            values = estimate_joint_values(self.prepared.fit_points, scaled, pl.pose, self.cfg).values
-            self.t_art += time.perf_counter() - ta
+        pl, scaled, values = self._at_screened_pose(m, geom, x)
         return self.front_error(geom, pl, values, scaled)
 
     def front_error(self, geom: ModelGeometry, placement: Placement, values: dict[str, float],
