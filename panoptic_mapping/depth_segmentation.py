@@ -18,9 +18,11 @@ arithmetic (and its float32 rounding) is the same, operation by operation, as th
 
 from __future__ import annotations
 
+import dataclasses
+import io
+import json
 import logging
 import os
-import pickle
 import queue
 import signal
 import struct
@@ -36,6 +38,7 @@ import cv2
 import numpy as np
 
 from panoptic_mapping.config import DepthSegmentationConfig
+from recon_core.config import from_dict, to_dict
 from recon_core.frame import CameraIntrinsics
 
 log = logging.getLogger(__name__)
@@ -325,14 +328,17 @@ def segment_depth_labels(depth: np.ndarray, intr: CameraIntrinsics, cfg: DepthSe
 _HEADER = struct.Struct("<Q")
 
 
-def _send(stream: Any, obj: object) -> None:
-    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+def _send(stream: Any, header: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+    """One message: an uncompressed npz of ``arrays`` and a JSON ``header`` (no pickle), length-prefixed."""
+    buf = io.BytesIO()
+    np.savez(buf, _header=np.frombuffer(json.dumps(header).encode(), np.uint8), **arrays)  # type: ignore[arg-type]
+    data = buf.getvalue()
     stream.write(_HEADER.pack(len(data)))
     stream.write(data)
     stream.flush()
 
 
-def _receive(stream: Any) -> Any:
+def _receive(stream: Any) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     head = stream.read(_HEADER.size)
     if len(head) < _HEADER.size:
         raise EOFError
@@ -340,7 +346,16 @@ def _receive(stream: Any) -> Any:
     data = stream.read(n)
     if len(data) < n:
         raise EOFError
-    return pickle.loads(data)  # our own process's messages, over its private pipe
+    with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    return json.loads(arrays.pop("_header").tobytes()), arrays
+
+
+def _job(depth: np.ndarray, intr: CameraIntrinsics, cfg: DepthSegmentationConfig,
+         pixel_area_scale: float) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """A job as a message (JSON floats round-trip exactly, so the worker computes what this process would)."""
+    header = {"intr": dataclasses.asdict(intr), "cfg": to_dict(cfg), "area": float(pixel_area_scale)}
+    return header, {"depth": np.asarray(depth)}
 
 
 def worker_main() -> None:
@@ -353,15 +368,16 @@ def worker_main() -> None:
     sys.stdout = sys.stderr  # nothing else may write into the result stream
     while True:
         try:
-            depth, intr, cfg, area = _receive(src)
+            header, arrays = _receive(src)
         except EOFError:
             return
         c0 = time.process_time()
         try:
-            out: object = (segment_depth_labels(depth, intr, cfg, area), time.process_time() - c0)
+            cfg = from_dict(DepthSegmentationConfig, header["cfg"])
+            labels = segment_depth_labels(arrays["depth"], CameraIntrinsics(**header["intr"]), cfg, header["area"])
+            _send(dst, {"cpu_s": time.process_time() - c0}, {"labels": labels})
         except Exception as exc:  # sent back: the parent segments that frame itself
-            out = exc
-        _send(dst, out)
+            _send(dst, {"error": repr(exc)}, {})
 
 
 class SegmentationWorker:
@@ -402,7 +418,7 @@ class SegmentationWorker:
     def _write(self, proc: subprocess.Popen[bytes], jobs: queue.SimpleQueue[tuple | None]) -> None:
         while (job := jobs.get()) is not None:
             try:
-                _send(proc.stdin, job)
+                _send(proc.stdin, *job)
             except (OSError, ValueError) as exc:  # the process is gone: the reader fails what is pending
                 log.debug("depth segmentation worker: job not sent (%s)", exc)
                 return
@@ -410,8 +426,8 @@ class SegmentationWorker:
     def _read(self, proc: subprocess.Popen[bytes]) -> None:
         while True:
             try:
-                out = _receive(proc.stdout)
-            except (EOFError, OSError, ValueError, pickle.UnpicklingError) as exc:
+                header, arrays = _receive(proc.stdout)
+            except (EOFError, OSError, ValueError, KeyError) as exc:
                 if self._proc is proc:  # not closed by us
                     log.warning("the depth segmentation worker process ended (%r): segmenting on the mapper's "
                                 "thread from now on", exc)
@@ -419,14 +435,13 @@ class SegmentationWorker:
                 return
             with self._lock:
                 fut = self._pending.pop(0) if self._pending else None
-                if isinstance(out, tuple):
-                    self.cpu_s += out[1]
+                self.cpu_s += float(header.get("cpu_s", 0.0))
             if fut is None:
                 continue
-            if isinstance(out, BaseException):
-                fut.set_exception(out)
+            if "error" in header:
+                fut.set_exception(RuntimeError(f"depth segmentation in the worker failed: {header['error']}"))
             else:
-                fut.set_result(out)
+                fut.set_result((arrays["labels"], float(header["cpu_s"])))
 
     def _fail(self, exc: BaseException) -> None:
         with self._lock:
@@ -446,7 +461,7 @@ class SegmentationWorker:
             self._start()
             with self._lock:
                 self._pending.append(fut)
-            self._jobs.put((depth, intr, cfg, pixel_area_scale))
+            self._jobs.put(_job(depth, intr, cfg, pixel_area_scale))
         except (OSError, ValueError) as exc:
             log.warning("depth segmentation worker unavailable (%s): segmenting on the mapper's thread", exc)
             self._fail(exc)
