@@ -7,13 +7,11 @@ from __future__ import annotations
 import threading
 import time
 
-import pytest
-
-mapper_node = pytest.importorskip("ros_nodes.mapper_node")
+from ros_nodes import mapper_node
 
 
 class _Extracted(Exception):
-    pass
+    """Raised where `_publish` would extract entities: it got past its duty-cycle wait."""
 
 
 class _Mapper:
