@@ -193,8 +193,13 @@ class PanopticMapper:
     def fuses_labels(self, masks: PanopticMasks | None) -> bool:
         """Whether `integrate(frame, masks)` fuses labels now: masks given, or a label-propagation frame
         (every `keyframes.label_every_n_frames`-th frame); all others take the geometry-only path."""
+        return masks is not None or self.propagates_labels()
+
+    def propagates_labels(self, frames_from_now: int = 0) -> bool:
+        """Whether the frame integrated `frames_from_now` frames after the next one is a label-propagation
+        frame (every `keyframes.label_every_n_frames`-th): what the segmentation ahead of time guesses by."""
         n_label = self.config.keyframes.label_every_n_frames
-        return masks is not None or (n_label > 0 and self.frames_integrated % n_label == 0)
+        return n_label > 0 and (self.frames_integrated + frames_from_now) % n_label == 0
 
     def integrate_geometry(self, frame: RGBDFrame) -> FrameStats:
         """Integrate one posed frame's depth into the TSDF only (the geometry-only fast path).

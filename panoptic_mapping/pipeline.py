@@ -334,7 +334,6 @@ class _SegmentAhead:
     def start(self) -> None:
         """Before the current frame is integrated: start the frames read ahead that will fuse labels."""
         m = self.mapper
-        n_label = m.config.keyframes.label_every_n_frames
         key: tuple[Any, Any] | None = None  # the keyframes the frames before will have made
         for i, (frame, fut, depth) in enumerate(self.buffer):
             if frame.pose is None:
@@ -344,7 +343,7 @@ class _SegmentAhead:
                 key = (frame.pose, frame.timestamp_ns)
             if fut is not None:
                 continue
-            if keyframe or (n_label > 0 and (m.frames_integrated + i + 1) % n_label == 0):
+            if keyframe or m.propagates_labels(i + 1):
                 depth, intr, area = m.label_depth(frame)
                 self.buffer[i] = (frame, self.worker.submit(depth, intr, m.config.depth_segmentation, area), depth)
 

@@ -535,18 +535,17 @@ class MapperNode(Node):
         frames (`keyframes.label_every_n_frames`) on the worker process (issue 26): with a backlog, it runs
         on the second core while this thread maps the frames before. A guess that misses costs only the
         worker's time; the result is used only for that very message with the same intrinsics."""
-        n = self.mapper.config.keyframes.label_every_n_frames
         queued = list(itertools.islice(self.queue, self.SEGMENT_AHEAD))
         live = {id(d) for _c, d, _t in queued}
         self._ahead = {k: v for k, v in self._ahead.items() if k in live}
-        if n <= 0 or self.info is None or not queued:
+        if self.mapper.config.keyframes.label_every_n_frames <= 0 or self.info is None or not queued:
             return
         try:
             intr = camera_info_to_intrinsics(self.info)
         except DatasetError:
             return
         for i, (_color, depth_msg, _t) in enumerate(queued):
-            if id(depth_msg) in self._ahead or (self.mapper.frames_integrated + i + 1) % n:
+            if id(depth_msg) in self._ahead or not self.mapper.propagates_labels(i + 1):
                 continue
             try:
                 depth, _bad = image_to_depth(depth_msg)
