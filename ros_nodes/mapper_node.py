@@ -98,6 +98,7 @@ from ros_nodes.conversions import (
     stamp_to_ns,
 )
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, entity_to_msg, map_markers
+from ros_nodes.image_pairing import ImagePairer
 from ros_nodes.parameters import declare_config, declare_config_file
 from ros_nodes.qos import ENTITIES, LATCHED, PROGRESS_TOPIC, RECORDING_DEPTH, STATUS, TF_STATIC
 from ros_nodes.runner import run_node, steady_timer
@@ -260,8 +261,9 @@ class MapperNode(Node):
         self.create_service(LoadMap, "load_map", self._srv_load, callback_group=services)
         self.create_service(ResetMap, "reset_map", self._srv_reset, callback_group=services)
         self.create_service(ExtractEntities, "extract_entities", self._srv_extract, callback_group=services)
-        self.colors: collections.deque[Image] = collections.deque(maxlen=30)
-        self.depths: collections.deque[Image] = collections.deque()  # not paired yet (color came late)
+        # the two camera topics paired by stamp; an image waits until its partner comes or can no longer come
+        # (both input callbacks share one group: the pairing is never entered twice at once)
+        self.pairer: ImagePairer[Image] = ImagePairer(self.sync_slop_ns)
         self._head: Image | None = None  # the frame at the head of the queue, how long it waited there
         self._head_waited = 0.0
         self._head_tick = 0.0
@@ -357,27 +359,22 @@ class MapperNode(Node):
         self.info = msg
 
     def _on_color(self, msg: Image) -> None:
-        self.colors.append(msg)
-        # the two streams are separate topics: a depth image may have come before its color image
-        t = stamp_to_ns(msg.header.stamp)
-        waiting = [d for d in self.depths if abs(stamp_to_ns(d.header.stamp) - t) <= self.sync_slop_ns]
-        for d in waiting:
-            self.depths.remove(d)
-            self._enqueue(msg, d)
+        for color, depth in self.pairer.add_color(stamp_to_ns(msg.header.stamp), msg):
+            self._enqueue(color, depth)
+        self._count_unpaired()
 
     def _on_depth(self, msg: Image) -> None:
-        t = stamp_to_ns(msg.header.stamp)
-        best = min(self.colors, key=lambda c: abs(stamp_to_ns(c.header.stamp) - t), default=None)
-        if best is None or abs(stamp_to_ns(best.header.stamp) - t) > self.sync_slop_ns:
-            self.depths.append(msg)
-            while len(self.depths) > self.UNPAIRED_DEPTHS:
-                self.depths.popleft()
-                self.counters["unpaired_depth"] += 1
-            return
-        self._enqueue(best, msg)
+        for color, depth in self.pairer.add_depth(stamp_to_ns(msg.header.stamp), msg):
+            self._enqueue(color, depth)
+        self._count_unpaired()
 
-    #: Depth images kept while their color image may still arrive.
-    UNPAIRED_DEPTHS = 10
+    def _count_unpaired(self) -> None:
+        """The pairing's counts of images whose partner can no longer come (`ros_nodes.image_pairing`)."""
+        n = self.pairer.counts
+        for key, value in (("unpaired_depth", n.unpaired_depth), ("unpaired_color", n.unpaired_color),
+                           ("unpaired_expired", n.expired)):
+            if value:
+                self.counters[key] = value
 
     def _enqueue(self, color: Image, depth: Image) -> None:
         self.queue.append((color, depth, time.monotonic()))
@@ -868,8 +865,8 @@ class MapperNode(Node):
                 "checkpoint_frames": self.checkpoint_frames,
                 "gravity": self.mapper.gravity.get("note", "")}
 
-    #: Counters of frames skipped as unusable (no pose, no camera info, bad image, depth without color).
-    SKIP_COUNTERS = ("no_tf", "no_camera_info", "bad_image", "unpaired_depth")
+    #: Counters of frames skipped as unusable (no pose, no camera info, bad image, an image whose partner was lost).
+    SKIP_COUNTERS = ("no_tf", "no_camera_info", "bad_image", "unpaired_depth", "unpaired_color")
     #: Counters of keyframes integrated without labels.
     UNLABELLED_COUNTERS = ("keyframes_unsegmented", "segmentation_timeout", "segmentation_failed")
 
