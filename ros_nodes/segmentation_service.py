@@ -71,26 +71,40 @@ class LabelBuffer:
     """The latest ground-truth label images by stamp; a request may wait briefly for its own.
 
     The player publishes color and labels at the same instant, but they travel on different
-    topics: the request for a frame can arrive before that frame's label image.
+    topics: the request for a frame can arrive before that frame's label image. The label topic
+    arrives in stamp order, so once a later label image has come, a missing one never will: the request
+    fails at once instead of after `label_wait_s` (a mapper that integrates in order waits for that answer;
+    0.5 s per keyframe whose label image had left the buffer, issue 26). A recording played in a loop
+    starts its stamps over; a request of the new pass that comes before its own label image, while the
+    newest one is still the old pass's last, fails that way too.
+    Images whose labels fit 16 bits are kept in 16 bits (half the memory of a deep buffer).
     """
 
     def __init__(self, size: int) -> None:
         self._size = max(int(size), 1)
         self._images: OrderedDict[int, np.ndarray] = OrderedDict()
         self._cond = threading.Condition()
+        self._last_put: int | None = None
 
     def put(self, stamp_ns: int, labels: np.ndarray) -> None:
+        if labels.size and labels.min() >= 0 and labels.max() <= np.iinfo(np.uint16).max:
+            labels = labels.astype(np.uint16)
         with self._cond:
             self._images[stamp_ns] = labels
             self._images.move_to_end(stamp_ns)
+            self._last_put = stamp_ns
             while len(self._images) > self._size:
                 self._images.popitem(last=False)
             self._cond.notify_all()
 
+    def _settled(self, stamp_ns: int) -> bool:
+        return stamp_ns in self._images or (self._last_put is not None and self._last_put > stamp_ns)
+
     def wait_for(self, stamp_ns: int, timeout_s: float) -> np.ndarray | None:
         with self._cond:
-            self._cond.wait_for(lambda: stamp_ns in self._images, timeout=max(timeout_s, 0.0))
-            return self._images.get(stamp_ns)
+            self._cond.wait_for(lambda: self._settled(stamp_ns), timeout=max(timeout_s, 0.0))
+            labels = self._images.get(stamp_ns)
+        return None if labels is None else labels.astype(np.int32)
 
     def count(self) -> int:
         with self._cond:
