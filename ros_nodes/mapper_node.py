@@ -82,11 +82,11 @@ from panoptic_mapping.gravity import (
     up_of_alignment,
 )
 from panoptic_mapping.mapper import MapSnapshot, PanopticMapper
-from panoptic_mapping.pipeline import ahead_segments, class_metas, segment_ahead
+from panoptic_mapping.pipeline import ahead_segments, class_metas, segment_ahead, segmentation_worker
 from recon_core.classes import load_class_table
 from recon_core.config import CONFIG_DIR, Settings, load_config, setting
 from recon_core.errors import CheckpointError, SceneReconError
-from recon_core.frame import DatasetError, RGBDFrame
+from recon_core.frame import CameraIntrinsics, DatasetError, RGBDFrame
 from recon_core.paths import confined_path
 from ros_nodes import diagnostics as diag
 from ros_nodes.conversions import (
@@ -151,6 +151,13 @@ class MapperNodeConfig(Settings):
                                         "pose and camera info (a lost sample is resent at the next heartbeat)")
     publish_period_s: float = setting(2.0, min=0.0, min_exclusive=True,
                                       doc="entities and markers are published at most this often (s)")
+    #: The duty above counts the mapper's own cost only; each publication also has the contact graph and the CAD
+    #: replacer rebuild (and once more from scratch a second later) on the same cores: a 30 Hz bag on 2 cores, one
+    #: publication 7 s in had the contact graph build for 0.5 s and the CAD replacer re-match for 3.3 s while
+    #: the mapper was 120 frames behind. So while behind, the consumers get the map when the mapper has caught
+    #: up, or after this long behind (a camera the mapper never catches up with).
+    publish_behind_period_s: float = setting(20.0, min=0.0, doc="while 10 or more frames wait to be integrated, "
+                                             "publish at most this often (s), counted from falling behind")
     publish_meshes: bool = setting(True, doc="entity messages carry their meshes")
     max_queue: int = setting(30, min=1, doc="frames waiting to be integrated; older ones are dropped")
     class_table: str = setting("", doc="class table YAML (default config/classes.yaml); the segmentation "
@@ -202,11 +209,14 @@ class MapperNode(Node):
             else settings.tf_wait_s
         self.hold_idle_s = settings.gravity_pause_s or self.HOLD_IDLE_FACTOR * max(settings.tf_wait_s, 0.25)
         self.publish_period_s = settings.publish_period_s
+        self.publish_behind_period_s = settings.publish_behind_period_s
         self.include_meshes = settings.publish_meshes
         self.max_queue = settings.max_queue
         self.class_table = load_class_table(settings.class_table) if settings.class_table else None
         self.data_root = Path(settings.data_root).expanduser().resolve()
         self.mapper = PanopticMapper(self.config, class_metas(self.class_table))
+        if self.use_segmentation:
+            self._start_worker()
         self.gravity_config = gcfg = load_config(DataInputConfig, CONFIG_DIR / "data.yaml").gravity
         gcfg.window_frames = settings.gravity_window_frames or gcfg.window_frames
         gcfg.stride = settings.gravity_stride or gcfg.stride
@@ -314,6 +324,17 @@ class MapperNode(Node):
         self.get_logger().info(f"data root {self.data_root}; checkpoints "
                                + (f"every {self.config.checkpoint.every_n_frames} frames / "
                                   f"{self.config.checkpoint.every_s:g} s" if self.checkpointer else "disabled"))
+
+    def _start_worker(self) -> None:
+        """Start the depth segmentation worker process (`segment_ahead`) now, with a tiny job, rather than on the
+        first keyframe: its start (a Python process importing the mapper, seconds on a loaded machine) then
+        overlaps the wait for the camera instead of holding the first keyframe's integration while frames pile
+        up (a 30 Hz bag on 2 cores: the first frames integrated 2-4 s after the first frame came)."""
+        try:
+            segmentation_worker().submit(np.ones((16, 16), np.float32), CameraIntrinsics(16.0, 16.0, 7.5, 7.5, 16, 16),
+                                         self.config.depth_segmentation)
+        except Exception as exc:  # never fatal: the first keyframe starts it (or segments on this thread)
+            self.get_logger().warning(f"depth segmentation worker not started ahead: {exc}")
 
     def _resume(self, store: CheckpointStore) -> None:
         if not store.generations():
@@ -808,13 +829,23 @@ class MapperNode(Node):
     PUBLISH_DUTY_BEHIND = 0.05
     #: Frames waiting (a third of a second of a 30 Hz camera) from which the mapper counts as behind.
     BEHIND_FRAMES = 10
+    #: when the mapper fell behind (monotonic s; None: not behind), for `publish_behind_period_s`
+    _behind_since: float | None = None
 
     def _publish(self) -> None:
+        now = time.monotonic()
+        behind = self._queued() >= self.BEHIND_FRAMES
+        if not behind:
+            self._behind_since = None
+        elif self._behind_since is None:
+            self._behind_since = now
         if not self._changed or self._services_waiting:
             return
         start, cost = self._last_publish
-        duty = self.PUBLISH_DUTY_BEHIND if self._queued() >= self.BEHIND_FRAMES else self.PUBLISH_DUTY
-        if time.monotonic() < start + cost / duty:
+        if now < start + cost / (self.PUBLISH_DUTY_BEHIND if behind else self.PUBLISH_DUTY):
+            return
+        if behind and self._behind_since is not None and \
+                now - max(start, self._behind_since) < self.publish_behind_period_s:
             return
         t0 = time.monotonic()
         try:

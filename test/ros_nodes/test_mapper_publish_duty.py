@@ -1,6 +1,7 @@
-"""The mapper node publishes less while frames wait (`MapperNode.PUBLISH_DUTY_BEHIND`): each publication also
-makes the contact graph and the CAD replacer rebuild on the same cores, so a mapper that is behind a camera
-spends its time integrating; with the queue short it publishes at its normal duty."""
+"""The mapper node publishes less while frames wait (`MapperNode.PUBLISH_DUTY_BEHIND`, and at most every
+`publish_behind_period_s` counted from falling behind): each publication also makes the contact graph and the
+CAD replacer rebuild on the same cores, so a mapper that is behind a camera spends its time integrating; with
+the queue short it publishes at its normal duty."""
 
 from __future__ import annotations
 
@@ -26,10 +27,13 @@ class _Stub:
     PUBLISH_DUTY_BEHIND = mapper_node.MapperNode.PUBLISH_DUTY_BEHIND
     BEHIND_FRAMES = mapper_node.MapperNode.BEHIND_FRAMES
 
-    def __init__(self, queued: int, since_last: float, last_cost: float) -> None:
+    def __init__(self, queued: int, since_last: float, last_cost: float, behind_for: float | None = None,
+                 behind_period: float = 20.0) -> None:
         self._changed, self._services_waiting = True, False
         self._last_publish = (time.monotonic() - since_last, last_cost)
         self.lock, self.mapper, self.queued = threading.Lock(), _Mapper(), queued
+        self._behind_since = None if behind_for is None else time.monotonic() - behind_for
+        self.publish_behind_period_s = behind_period
 
     def _queued(self) -> int:
         return self.queued
@@ -51,6 +55,22 @@ def test_a_short_queue_publishes_at_the_normal_duty() -> None:
 
 def test_a_mapper_behind_the_camera_waits_longer_between_publications() -> None:
     behind = _Stub.BEHIND_FRAMES
-    assert not _extracts(_Stub(queued=behind, since_last=1.0, last_cost=0.2))   # needs 0.2 / 0.05 = 4 s
-    assert _extracts(_Stub(queued=behind, since_last=4.5, last_cost=0.2))
+    # without the period: the duty, 0.2 / 0.05 = 4 s
+    assert not _extracts(_Stub(queued=behind, since_last=1.0, last_cost=0.2, behind_period=0.0))
+    assert _extracts(_Stub(queued=behind, since_last=4.5, last_cost=0.2, behind_for=10.0, behind_period=0.0))
     assert not _extracts(_Stub(queued=0, since_last=0.3, last_cost=0.2))        # under 0.67 s even when idle
+
+
+def test_a_mapper_behind_publishes_when_caught_up_or_after_the_period() -> None:
+    behind = _Stub.BEHIND_FRAMES
+    # fell behind 5 s ago, last publication long before: waits for the period from falling behind
+    assert not _extracts(_Stub(queued=behind, since_last=60.0, last_cost=0.2, behind_for=5.0))
+    assert _extracts(_Stub(queued=behind, since_last=60.0, last_cost=0.2, behind_for=21.0))
+    # behind for long, but published 10 s ago: the period counts from that publication
+    assert not _extracts(_Stub(queued=behind, since_last=10.0, last_cost=0.2, behind_for=60.0))
+    # just fell behind (first look): the period starts now
+    stub = _Stub(queued=behind, since_last=60.0, last_cost=0.2)
+    assert not _extracts(stub) and stub._behind_since is not None
+    # caught up: published at once, and no longer counted as behind
+    stub.queued = behind - 1
+    assert _extracts(stub) and stub._behind_since is None
