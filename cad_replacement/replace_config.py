@@ -115,8 +115,9 @@ class CadReplacementConfig:
     joint_refine: int = 7
     #: Points (not explained by the rest of the model) used per joint.
     joint_points: int = 200
-    #: Coordinate-descent passes over the joints.
-    joint_passes: int = 1
+    #: Coordinate-descent passes over the joints at most; a pass after the first searches again only the
+    #: joints another joint's change came after (``articulation.estimate_joint_values``).
+    joint_passes: int = 3
     #: Estimated openings smaller than these (rad for revolute, m for prismatic joints) are taken
     #: as closed: they are within what a pose/scale error of a few mm explains.
     joint_snap_angle: float = 0.0873  # 5 degrees

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from cad_replacement.cad.feature_types import ModelFeatures
-from cad_replacement.cad.layouts import layout_variants
+from cad_replacement.cad.layouts import layout_variants, resized_variants
 from cad_replacement.cad.library import CadEntry
 from cad_replacement.cad.model import CadModel
 from recon_core.classes import ClassTable, UnknownClassError
@@ -780,39 +780,46 @@ def _layout_search(results: Sequence[CandidateResult], screened_x: dict[int, NDA
     searched = []
     for best in bases:
         x = screened_x.get(id(best.match))
-        variants = layout_variants(best.match.entry)
-        if x is None or not variants:
+        layouts = layout_variants(best.match.entry)
+        if x is None or not layouts:
             continue
         if best is not full[0] and not _front_unexplained(best, cache.get(best.match.entry), fitter.prepared, cfg):
             continue
         base_geom = cache.get(best.match.entry)
+        variants = [(entry, x) for entry in layouts]
+        if len(x) >= 6:  # per-axis scales: a model rebuilt at the fitted width starts at the same size
+            width = float(best.placement.scale[1] * base_geom.size[1])
+            for entry in resized_variants(best.match.entry, layouts, width):
+                xv = x.copy()
+                xv[1] += np.log(base_geom.size[1] / cache.get(entry).size[1])
+                variants.append((entry, xv))
         searched.append((best, x, variants, base_geom, fitter.quick_front_error(best.match, base_geom, x)))
     # Handles seen at one base's front and not at another's: the latter faces the wrong way (a carcass
     # turned sideways, its drawers pulled out to cover the depth), and no layout of it is the object's.
     handles_seen = any(np.isfinite(it[4]) for it in searched)
     out = []
-    for best, x, variants, base_geom, base_front in searched:
+    for best, _x, variants, base_geom, base_front in searched:
         # A closed front is ranked by its handles (``front_error``); with a part open (its handle turned away,
         # the part's own geometry in view) by the AE, which sees where the open parts are.
         is_open = _parts_open(best, base_geom)
         by_front = bool(np.isfinite(base_front)) and not is_open
         if not np.isfinite(base_front) and (handles_seen or not is_open):
             continue  # no handles in view at this front: nothing tells its layout, or it is not the front
-        ranked: list[tuple[float, MatchCandidate, ModelGeometry]] = []
-        for entry in variants:
+        ranked: list[tuple[float, MatchCandidate, ModelGeometry, NDArray[np.float64]]] = []
+        for entry, xv in variants:
             geom = cache.get(entry)
             m = dataclasses.replace(best.match, entry=entry)
-            err = fitter.quick_front_error(m, geom, x) if by_front else fitter.quick_error(m, geom, x)
+            err = fitter.quick_front_error(m, geom, xv) if by_front else fitter.quick_error(m, geom, xv)
             if by_front and not (err < (1.0 - cfg.layout_margin) * base_front and err <= FRONT_GOOD):
                 # the library model's own front explains the observed one at least as well, or the variant's
                 # handles miss the observed ones as badly (a carcass stretched 1.46x puts every handle elsewhere)
                 continue
-            ranked.append((err, m, geom))
+            ranked.append((err, m, geom, xv))
         ranked.sort(key=lambda it: it[0])
         base_full_front = fitter.front_error(base_geom, best.placement, best.joint_values) \
             if by_front else float("nan")
-        for _err, m, geom in ranked[:cfg.layout_fits]:
-            r = fitter.fit(m, geom, x.copy(), 0.0, 0)
+        for _err, m, geom, xv in ranked[:cfg.layout_fits]:
+            r = fitter.fit(m, geom, xv.copy(), 0.0, 0)
             if _yaw_gap(r.yaw, best.yaw) > LAYOUT_YAW_TOL:
                 continue
             r.score *= 1.0 + cfg.layout_margin

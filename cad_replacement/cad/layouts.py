@@ -54,6 +54,43 @@ def variant_entry(base: CadEntry, overrides: Mapping[str, ParamValue]) -> CadEnt
     return replace(base, key=variant_key(root, dict(pinned)), overrides=pinned)
 
 
+#: ``resized_variants`` pins the fitted width to this step (m), so that one object's fits share a few models.
+WIDTH_STEP = 0.01
+
+
+def _front_parts(entry: CadEntry) -> tuple[str, ...]:
+    """The moving joints' types of an entry's front (how many doors and drawers it has)."""
+    assert entry.seed is not None
+    return tuple(sorted(j[1] for j in front_signature(entry.class_name, entry.seed, entry.overrides)))
+
+
+def resized_variants(entry: CadEntry, layouts: list[CadEntry], width: float) -> list[CadEntry]:
+    """``entry`` and its ``layouts`` built at ``width`` (the width the fit stretched the model to), each only
+    where that width gives its front other doors or drawers (the builders choose how many doors a front has
+    and whether drawers stand in one column or two from the width: ``builders_articulated._door_count``).
+
+    The alignment's transform scales the CAD model to the observed box (the paper's Eqs. 9-10; ours per
+    axis), and scaling a model does not add a door: a one-door cabinet fitted 1.5x wide to a two-door one
+    keeps one door, whose handle and hinge are where neither of the object's are (issue 23: gen-7373's
+    two-door cabinet replaced by a 0.59 m one-door model, seed:47's three doors by a two-door one). Empty
+    for a class without a ``width`` parameter or an imported model."""
+    if entry.kind != "procedural" or entry.seed is None or "width" not in CLASS_BUILDERS[entry.class_name].params:
+        return []
+    pinned = round(float(width) / WIDTH_STEP) * WIDTH_STEP
+    if not np.isfinite(pinned) or pinned <= 0.0:
+        return []
+    out: list[CadEntry] = []
+    kinds: set[tuple[tuple[ParamValue, ...], tuple[str, ...]]] = set()
+    for base in (entry, *layouts):
+        variant = variant_entry(base, {"width": round(pinned, 3)})
+        parts = _front_parts(variant)
+        layout = tuple(v for k, v in sorted(variant.overrides) if k != "width")
+        if parts != _front_parts(base) and (layout, parts) not in kinds:
+            kinds.add((layout, parts))
+            out.append(variant)
+    return out
+
+
 def parse_variant_key(key: str) -> tuple[str, dict[str, ParamValue]]:
     """``(base key, overrides)`` of a key made by ``variant_key`` (no overrides for a plain key).
 
