@@ -313,6 +313,35 @@ def _pose_moved(prob: AlignmentProblem, x0: NDArray[np.float64], x1: NDArray[np.
     return bool(turn > REFIT_ANGLE or np.linalg.norm(p1.translation - p0.translation) > REFIT_SHIFT)
 
 
+#: A screening start: (start score, candidate, its fit problem, start parameters).
+_Start = tuple[float, MatchCandidate, AlignmentProblem, NDArray[np.float64]]
+
+
+def _front_cue_fitted(starts: list[_Start], slots: int) -> list[_Start]:
+    """``starts`` (sorted by start score) with the best start of the orientation the front cue names
+    moved into the last of the ``slots`` short fits when no start of that orientation holds a slot.
+
+    A box start centres the model in the observed box whichever way it faces, so front and back
+    start equally displaced; an observation that reaches beyond the object's front (clutter before a
+    screen, the fringe of the desk) shifts the right orientation's start furthest from its surface.
+    Ranked on start scores alone, every short fit can go to the back-to-front orientation of some
+    model (a monitor turned 180 degrees, issue 22). The cue's orientation then still gets one short
+    fit, and the full fit's AE, with the selection factor, decides. No extra fit is spent.
+    """
+    if len(starts) <= slots or slots < 1:
+        return starts
+    fronts = np.array([it[1].d_front for it in starts])
+    best_front = float(fronts.min())
+    if not float(fronts.max()) > best_front + 1e-9:  # no cue, or every start agrees with it
+        return starts
+    named = np.flatnonzero(fronts <= best_front + 1e-9)
+    if named[0] < slots:
+        return starts
+    out = list(starts)
+    out.insert(slots - 1, out.pop(int(named[0])))
+    return out
+
+
 def _selection_factor(m: MatchCandidate, cfg: CadReplacementConfig) -> float:
     return (1.0 + cfg.front_ae_factor * m.d_front) * (1.0 + cfg.class_ae_factor * m.d_class)
 
@@ -377,7 +406,7 @@ def _align_ours(
 
     # Coarse stage 1: every top-k candidate (all yaws of all models) is scored at its box start.
     t = time.perf_counter()
-    starts: list[tuple[float, MatchCandidate, AlignmentProblem, NDArray[np.float64]]] = []
+    starts: list[_Start] = []
     geoms: dict[str, ModelGeometry] = {}
     for m in matches:
         geom = geoms.get(m.entry.key) or cache.get(m.entry)
@@ -392,6 +421,7 @@ def _align_ours(
         x0 = prob.start(*box_start(m.frame, geom, m.box_rotation, bottom))
         starts.append((prob.score(x0) * _selection_factor(m, cfg), m, prob, x0))
     starts.sort(key=lambda it: it[0])
+    starts = _front_cue_fitted(starts, cfg.screen_fits)
     timings["screen_start"] = time.perf_counter() - t
     # Coarse stage 2: a short robust LM on the subsample for the best starts.
     t = time.perf_counter()
