@@ -253,8 +253,13 @@ class MapperNode(Node):
         services = MutuallyExclusiveCallbackGroup()
         self.tf = TFListener(self, callback_group=MutuallyExclusiveCallbackGroup(), reliable=settings.tf_reliable)
         # camera topics: RELIABLE or BEST_EFFORT, whatever the driver offers (ros_nodes.sensor_subscription)
-        # (a recording, in_order: a deep history, so a frame the mapper is slow to take is not overwritten)
-        depth = RECORDING_DEPTH if self.in_order else 0
+        # with a deep history, so a frame the mapper is slow to take is not overwritten. A live camera too: the
+        # history only holds what the input callbacks have not taken yet, and they wait while an Open3D call of
+        # the integration thread holds the interpreter lock; with the sensor profiles' 5 (170 ms at 30 Hz), a
+        # 30 Hz bag on 2 loaded cores lost 30-60 of 300 colour and depth images, each independently, each loss
+        # a frame. What is dropped when the mapper is behind is the node's own queue's choice (max_queue,
+        # oldest first, counted), whole frames.
+        depth = RECORDING_DEPTH
         self.sensor_subs = [SensorSubscription(self, Image, settings.color_topic, self._on_color, inputs, depth=depth),
                             SensorSubscription(self, Image, settings.depth_topic, self._on_depth, inputs, depth=depth),
                             SensorSubscription(self, CameraInfo, settings.camera_info_topic, self._on_info, inputs,
