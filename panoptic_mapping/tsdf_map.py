@@ -18,6 +18,8 @@ import open3d.core as o3c
 from panoptic_mapping.config import TSDFConfig
 
 _CPU = o3c.Device("CPU:0")
+_BIAS = 1 << 20  # block coordinates are packed into 21 bits each (+-2^20 blocks: far beyond any room)
+_MASK21 = (1 << 21) - 1
 
 
 class LabeledTSDF:
@@ -86,23 +88,26 @@ class LabeledTSDF:
 
     # ------------------------------------------------------------------ voxel lookup
     def _flat_indices(self, points: np.ndarray, activate: bool = False) -> np.ndarray:
-        """Flattened voxel-attribute index of the voxel nearest each point; -1 where no block exists.
-
-        Every point's block key goes to Open3D's hash map as it is: its vectorised find (and activate,
-        which leaves a key already present alone) costs less than making the keys unique first (a sort
-        of a frame's points, 40 % of this call's time)."""
+        """Flattened voxel-attribute index of the voxel nearest each point; -1 where no block exists."""
         if len(points) == 0:
             return np.zeros(0, np.int64)
         vox = np.round(points * (1.0 / self.vs)).astype(np.int64)
         blk = vox >> self._shift  # floor division by the (power of two) block resolution
         off = vox & (self.res - 1)
-        keys = o3c.Tensor(np.ascontiguousarray(blk, np.int32))
+        # unique on one packed int64 key per block (np.unique on rows is ~10x slower)
+        packed = ((blk[:, 0] + _BIAS) << 42) | ((blk[:, 1] + _BIAS) << 21) | (blk[:, 2] + _BIAS)
+        upacked, inv = np.unique(packed, return_inverse=True)
+        ublk = np.stack([(upacked >> 42) - _BIAS, ((upacked >> 21) & _MASK21) - _BIAS, (upacked & _MASK21) - _BIAS],
+                        axis=1)
+        keys = o3c.Tensor(ublk.astype(np.int32))
         hashmap = self.vbg.hashmap()
         if activate:
             hashmap.activate(keys)
         buf, found = hashmap.find(keys)
-        b = buf.numpy().astype(np.int64)
-        b[~found.numpy()] = -1
+        buf = buf.numpy().astype(np.int64)
+        found = found.numpy()
+        buf[~found] = -1
+        b = buf[inv.reshape(-1)]
         flat = b * self.res**3 + off[:, 2] * self.res**2 + off[:, 1] * self.res + off[:, 0]
         return np.where(b >= 0, flat, -1)
 
