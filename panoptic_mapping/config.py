@@ -189,6 +189,10 @@ class ExtractionConfig(Settings):
     #: and their surface goes to the fill below (or stays unknown). False: fragments are just dropped.
     merge_fragments: bool = setting(True, doc="fragments below min_instance_frames join a touching entity "
                                     "of their class")
+    #: A mesh face belongs to the entity of at least two of its three vertices (false: only to the entity
+    #: of all three; faces between entities went to `unknown`, a one-voxel band around every entity, which
+    #: is most of a small thing's surface at 2 cm voxels). docs/STAGE2_MAPPING.md, "Small things far away".
+    face_majority: bool = setting(True, doc="a mesh face belongs to the entity of two of its three vertices")
     #: Entities with fewer mesh vertices are dropped.
     min_entity_voxels: int = 50
     #: Also output the reconstructed surface no entity claims, as entity 0 of class -1 ("unknown"):

@@ -72,13 +72,23 @@ def _overlap(a: np.ndarray, b: np.ndarray, na: int, nb: int) -> np.ndarray:
 
 
 def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionConfig, full: bool,
-         min_points: int) -> FrameSegments:
-    """Fuse geometric segments `geo` (0 = none) with `masks`; `points` (H, W, 3) for clustering."""
+         min_points: int, min_rescue_points: int | None = None) -> FrameSegments:
+    """Fuse geometric segments `geo` (0 = none) with `masks`; `points` (H, W, 3) for clustering.
+
+    `min_points`: the fewest pixels a segment needs to carry a label. `min_rescue_points` (default: the
+    same): the fewest a mask rescued from the depth edges needs, as its own segment, to carry its label.
+    A small object far away is a mask of a few dozen pixels that the convexity segmentation leaves all
+    edge; when a thing is born only from repeated observations (`extraction.min_instance_frames` > 1),
+    one frame's few pixels are a vote, not a verdict, and the mapper passes the association's floor here.
+    """
     geo = geo.astype(np.int64)
     n_g = int(geo.max()) + 1
+    n_g_geometric = n_g
+    min_rescue = min_points if min_rescue_points is None else min_rescue_points
     n_m = len(masks.class_id)
     pan = masks.labels.astype(np.int64)
     num_split = 0
+    rescued_floor = np.zeros(0, np.int64)  # per rescued segment (ids from n_g_geometric on)
     if full and cfg.rescue_edge_masks and n_m > 1:
         # small objects are mostly edge pixels for the depth segmentation (a cup a few metres away):
         # a mask lying mostly outside every segment gets its valid-depth pixels as a segment
@@ -87,7 +97,9 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
         cat = np.where(geo > 0, 1, np.where(valid, 0, 2)).astype(np.int64)
         per_mask = np.bincount((pan * 3 + cat).ravel(), minlength=n_m * 3).reshape(n_m, 3)
         in_seg, on_edge = per_mask[:, 1], per_mask[:, 0]
-        rescue = (on_edge > in_seg) & (on_edge >= min_points)
+        # a thing's mask (the birth rule weighs it across frames) down to `min_rescue`; stuff as any segment
+        need = np.where(masks.is_thing[:n_m], min_rescue, min_points)
+        rescue = (on_edge > in_seg) & (on_edge >= need)
         rescue[0] = False
         ms = np.flatnonzero(rescue)
         if ms.size:
@@ -97,6 +109,7 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
             geo = np.where((cat == 0) & (lut_pan > 0), lut_pan, geo)
             n_g += ms.size
             num_split += int(ms.size)
+            rescued_floor = need[ms]
     if full and cfg.split and n_m > 1 and n_g > 1:
         ov = _overlap(geo, pan, n_g, n_m)
         size_m = np.maximum(ov.sum(axis=0), 1)
@@ -128,8 +141,11 @@ def fuse(geo: np.ndarray, masks: PanopticMasks, points: np.ndarray, cfg: FusionC
     share = ov_masks[np.arange(n_g), best] / np.maximum(size_g, 1)
     mask_of = np.where(share >= cfg.min_label_share, best, 0)
     mask_of[0] = 0
-    # tiny segments carry no label (not enough evidence), and segments absent from the image vanish
-    small = size_g < min_points
+    # tiny segments carry no label (not enough evidence), and segments absent from the image vanish;
+    # a rescued mask's segment (ids from n_g_geometric on, before any split) has its own floor
+    floor = np.full(n_g, min_points, np.int64)
+    floor[n_g_geometric:n_g_geometric + len(rescued_floor)] = rescued_floor
+    small = size_g < floor
     mask_of[small] = 0
     num_out = 0
     if full and cfg.cluster:

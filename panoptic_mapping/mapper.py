@@ -256,7 +256,8 @@ class PanopticMapper:
         else:
             masks = PanopticMasks.empty(depth.shape)
         min_pts = max(1, round(cfg.fusion.min_segment_points * area))
-        segs = fuse(geo, masks, points, cfg.fusion, full=self.full, min_points=min_pts)
+        segs = fuse(geo, masks, points, cfg.fusion, full=self.full, min_points=min_pts,
+                    min_rescue_points=self._min_rescue_points(area))
         t["fusion"] = time.perf_counter()
         # only every `stride`-th pixel (both directions) is associated and voted: transform just those
         # ((N, 3) @ (3, 3) in numpy is slow for this shape; cv2.transform is a tight C loop)
@@ -301,6 +302,24 @@ class PanopticMapper:
             prev = v
         return FrameStats(bool(masks.labels.any()), segs.count, new_labels, segs.num_split, segs.num_clustered_out,
                           timings)
+
+    def _min_rescue_points(self, area: float) -> int:
+        """Fewest pixels (at processing resolution) a thing mask the depth segmentation left all edge needs
+        to become a labelled segment of its own (`fusion.fuse`).
+
+        A cup or a bottle 2-3 m away is 50-150 pixels a frame and every one of them a depth edge: under
+        `fusion.min_segment_points` in every frame, however many frames see it, so the map never held a
+        vote for it (bench-clutter's cup: 9 876 pixels over 61 frames, 3 of its 5 keyframes with a cup mask;
+        docs/STAGE2_MAPPING.md). When a thing is born only from `extraction.min_instance_frames` > 1
+        segmented frames, one frame's mask is a vote the birth rule weighs, so the floor drops to the
+        association's own (`association.min_overlap_points`: the fewest pixels a segment can be found
+        again in the map by); with the paper's birth (one frame) each frame must still be convincing alone.
+        """
+        cfg = self.config
+        floor = cfg.fusion.min_segment_points
+        if cfg.extraction.min_instance_frames > 1:
+            floor = min(floor, cfg.association.min_overlap_points)
+        return max(1, round(floor * area))
 
     def _small_class(self, class_id: int) -> bool:
         """A rigid thing class small enough for the fine surface (`fine_surface.max_class_size_m`); an
@@ -578,11 +597,12 @@ class PanopticMapper:
         voted = ent_v > 0
         ent_v = self._fill_unclaimed(v, ent_v)
         ent_f = ent_v[f]
-        same = (ent_f[:, 0] == ent_f[:, 1]) & (ent_f[:, 1] == ent_f[:, 2]) & (ent_f[:, 0] > 0)
+        owner = _face_owner(ent_f, self.config.extraction.face_majority)
+        same = owner > 0
         if unknown is not None and np.any(~same):
             used, inv = np.unique(f[~same].ravel(), return_inverse=True)
             unknown.vertices, unknown.faces, unknown.num_voxels = v[used], inv.reshape(-1, 3), len(used)
-        f, eid = f[same], ent_f[same, 0]
+        f, eid = f[same], owner[same]
         order = np.argsort(eid, kind="stable")
         f, eid = f[order], eid[order]
         starts = np.searchsorted(eid, [e.id for e in ents], side="left")
@@ -918,6 +938,20 @@ def _set_core_first(e: Entity, vertices: np.ndarray, faces: np.ndarray, is_core:
     rank[order] = np.arange(len(order))
     e.set_geometry(vertices[used[order]], rank[inv].reshape(-1, 3), int(is_core[used].sum()))
     return len(used)
+
+
+def _face_owner(ent_f: np.ndarray, majority: bool) -> np.ndarray:
+    """The entity each face (rows: its three vertices' entities) belongs to, 0 for none.
+
+    `majority`: the entity of at least two of its vertices. Along every border between two entities
+    the marching-cubes faces mix the voxel labels of both sides; giving those faces to neither strips a
+    band about one voxel wide off every entity, which is little of a cabinet and most of a cup mapped at
+    2 cm voxels (bench-clutter's cup: 42 vertices). False: only faces whose three vertices agree.
+    """
+    a, b, c = ent_f[:, 0], ent_f[:, 1], ent_f[:, 2]
+    if not majority:
+        return np.where((a == b) & (b == c), a, 0)
+    return np.where((a == b) | (a == c), a, np.where(b == c, b, 0))
 
 
 def _majority_entity(labels: np.ndarray, entities: np.ndarray) -> np.ndarray:
