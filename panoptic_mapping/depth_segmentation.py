@@ -450,6 +450,20 @@ class SegmentationWorker:
         for fut in pending:
             fut.set_exception(exc)
 
+    def start(self) -> bool:
+        """Start the process now rather than with the first job (a Python process importing the mapper takes
+        seconds on a loaded machine; a node starts it while it waits for the camera). False, and the worker
+        marked broken, when it cannot start: the caller then segments on its own thread."""
+        if self.broken:
+            return False
+        try:
+            self._start()
+        except (OSError, ValueError) as exc:
+            log.warning("depth segmentation worker unavailable (%s): segmenting on the mapper's thread", exc)
+            self._fail(exc)
+            return False
+        return True
+
     def submit(self, depth: np.ndarray, intr: CameraIntrinsics, cfg: DepthSegmentationConfig,
                pixel_area_scale: float = 1.0) -> Future:
         fut: Future = Future()

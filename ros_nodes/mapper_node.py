@@ -86,7 +86,7 @@ from panoptic_mapping.pipeline import ahead_segments, class_metas, segment_ahead
 from recon_core.classes import load_class_table
 from recon_core.config import CONFIG_DIR, Settings, load_config, setting
 from recon_core.errors import CheckpointError, SceneReconError
-from recon_core.frame import CameraIntrinsics, DatasetError, RGBDFrame
+from recon_core.frame import DatasetError, RGBDFrame
 from recon_core.paths import confined_path
 from ros_nodes import diagnostics as diag
 from ros_nodes.conversions import (
@@ -331,15 +331,11 @@ class MapperNode(Node):
                                   f"{self.config.checkpoint.every_s:g} s" if self.checkpointer else "disabled"))
 
     def _start_worker(self) -> None:
-        """Start the depth segmentation worker process (`segment_ahead`) now, with a tiny job, rather than on the
-        first keyframe: its start (a Python process importing the mapper, seconds on a loaded machine) then
-        overlaps the wait for the camera instead of holding the first keyframe's integration while frames pile
-        up (a 30 Hz bag on 2 cores: the first frames integrated 2-4 s after the first frame came)."""
-        try:
-            segmentation_worker().submit(np.ones((16, 16), np.float32), CameraIntrinsics(16.0, 16.0, 7.5, 7.5, 16, 16),
-                                         self.config.depth_segmentation)
-        except Exception as exc:  # never fatal: the first keyframe starts it (or segments on this thread)
-            self.get_logger().warning(f"depth segmentation worker not started ahead: {exc}")
+        """Start the depth segmentation worker process (`segment_ahead`) now rather than on the first keyframe:
+        its start then overlaps the wait for the camera instead of holding the first keyframe's integration while
+        frames pile up (a 30 Hz bag on 2 cores: the first frames integrated 2-4 s after the first frame came).
+        Never fatal: a worker that cannot start leaves the segmentation on this node's thread."""
+        segmentation_worker().start()
 
     def _resume(self, store: CheckpointStore) -> None:
         if not store.generations():

@@ -136,3 +136,29 @@ def test_a_keyframe_segmented_while_its_masks_are_computed_maps_the_same(recordi
         inline.integrate(f, None)
         ahead.integrate(f, None, segments)
     _assert_same_map(inline, ahead)
+
+
+def test_a_worker_started_before_its_first_job_runs_it(recording, monkeypatch):
+    """`start()` (the mapper node calls it at start-up) starts the process without a job; the first job then
+    goes to that process. A worker that cannot start says so and is marked broken (segment on this thread)."""
+    cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml").depth_segmentation
+    with open_dataset(recording) as loader:
+        frame = next(iter(loader))
+    worker = SegmentationWorker()
+    try:
+        assert worker.start()
+        proc = worker._proc
+        assert proc is not None and proc.poll() is None
+        depth = frame.depth.astype(np.float32)
+        labels, _ = worker.submit(depth, frame.intrinsics, cfg).result(timeout=60)
+        assert worker._proc is proc  # no second process
+        np.testing.assert_array_equal(labels, segment_depth_labels(depth, frame.intrinsics, cfg))
+    finally:
+        worker.close()
+
+    def no_process(*_a, **_k):
+        raise OSError("no process for you")
+
+    monkeypatch.setattr("panoptic_mapping.depth_segmentation.subprocess.Popen", no_process)
+    broken = SegmentationWorker()
+    assert not broken.start() and broken.broken
