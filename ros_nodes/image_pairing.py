@@ -25,6 +25,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
+from panoptic_mapping.dataio.pairing import take_nearest
+
 T = TypeVar("T")
 
 
@@ -127,11 +129,6 @@ class ImagePairer(Generic[T]):
 
     def _pair(self, d: _Waiting[T]) -> tuple[T, T] | None:
         """The depth image `d` with the nearest waiting colour image within the slop (that one is taken)."""
-        while self._colors and self._colors[0].stamp < d.stamp - self.slop_ns:
-            self._colors.popleft()  # older than any depth image from `d` on can take
-            self.counts.unpaired_color += 1
-        best = min(self._colors, key=lambda c: abs(c.stamp - d.stamp), default=None)
-        if best is None or abs(best.stamp - d.stamp) > self.slop_ns:
-            return None
-        self._colors.remove(best)
-        return best.item, d.item
+        best, dropped = take_nearest(self._colors, d.stamp, self.slop_ns)
+        self.counts.unpaired_color += dropped  # older than any depth image from `d` on can take
+        return None if best is None else (best.item, d.item)

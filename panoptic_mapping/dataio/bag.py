@@ -28,6 +28,7 @@ from panoptic_mapping.dataio.align import register_to_depth
 from panoptic_mapping.dataio.config import DataInputConfig
 from panoptic_mapping.dataio.image_codec import decode_color, decode_depth
 from panoptic_mapping.dataio.intrinsics import read_intrinsics_file
+from panoptic_mapping.dataio.pairing import take_nearest
 from panoptic_mapping.dataio.salvage import SalvagedBag, storage_files
 from panoptic_mapping.dataio.transforms import TransformBuffer, TransformLookupError
 from recon_core.frame import CameraIntrinsics, DatasetError, RGBDFrame, sanitize_depth
@@ -376,14 +377,11 @@ class RosbagLoader:
                 depths.popleft()
                 for k in [k for k in labels if k < d.stamp]:
                     del labels[k]
-                while colors and colors[0].stamp < d.stamp - slop:
-                    colors.popleft()
-                    self.skips.unpaired_color += 1
-                best = min(colors, key=lambda c: abs(c.stamp - d.stamp), default=None)
-                if best is None or abs(best.stamp - d.stamp) > slop:
+                best, dropped = take_nearest(colors, d.stamp, slop)
+                self.skips.unpaired_color += dropped
+                if best is None:
                     self.skips.unpaired_depth += 1
                     continue
-                colors.remove(best)
                 if d.stamp <= last_emitted:
                     self.skips.non_monotonic += 1
                     continue
