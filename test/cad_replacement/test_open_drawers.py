@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from testsupport.observations import yaw_pose
+from testsupport.observations import complete_observation, yaw_pose
 
 from cad_replacement.cad.procedural import build_model
-from cad_replacement.observation import MESH_SAMPLES, ObjectObservation
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replace_object import _side_front, replace_object
 from cad_replacement.seeded_library import SeededLibrary
-from recon_core.geometry.plane_fit import sample_mesh
 from scene_recon.evaluation.cad_metrics import evaluate_object
 
 #: bench-office's cabinet_1 (seed and joint values of the suite scene's ground truth).
@@ -32,11 +30,7 @@ def test_open_drawers_are_read_open_and_the_cabinet_faces_its_handles(
                             extra_seeds={"cabinet": [6]})
     model = build_model("cabinet", SEED)
     pose = yaw_pose(-np.pi / 2, (0.728, 1.982, 0.0))
-    mesh = model.mesh(VALUES)
-    mesh.apply_transform(pose)
-    points, normals = sample_mesh(mesh, MESH_SAMPLES, 0)  # the complete mesh, as the protocol's entities
-    obs = ObjectObservation(1, "cabinet_1", "cabinet", points, normals=normals, support_z=0.0,
-                            front_hint=pose[:2, 0].copy(), mesh=mesh)
+    obs, _mesh = complete_observation(model, pose, VALUES, "cabinet_1")  # as the protocol's entities
     rep = replace_object(obs, library, CadReplacementConfig(workers=1))
     ev = evaluate_object(rep, model, pose, VALUES)
     assert ev.front_flip is False and ev.pose_success, (ev.chosen, ev.yaw_error_deg, ev.size_error)

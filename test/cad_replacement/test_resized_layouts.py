@@ -10,15 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from testsupport.observations import yaw_pose
+from testsupport.observations import complete_observation, yaw_pose
 
 from cad_replacement.cad.layouts import layout_variants, resized_variants
 from cad_replacement.cad.procedural import build_model
-from cad_replacement.observation import MESH_SAMPLES, ObjectObservation
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replace_object import replace_object
 from cad_replacement.seeded_library import SeededLibrary
-from recon_core.geometry.plane_fit import sample_mesh
 from scene_recon.evaluation.cad_metrics import evaluate_object
 
 #: gen-7373's cabinet_1 (ground truth of the protocol scene): layout "doors", 0.885 m wide, two doors.
@@ -51,11 +49,7 @@ def test_resized_variants_are_those_whose_front_the_width_changes(library: Seede
 def test_a_two_door_cabinet_is_not_replaced_by_a_stretched_one_door_model(library: SeededLibrary) -> None:
     model = build_model("cabinet", SEED)
     pose = yaw_pose(0.0, (0.4, -1.1, 0.0))
-    mesh = model.mesh(VALUES)
-    mesh.apply_transform(pose)
-    points, normals = sample_mesh(mesh, MESH_SAMPLES, 0)  # the complete mesh, as the protocol's entities
-    obs = ObjectObservation(1, "cabinet_1", "cabinet", points, normals=normals, support_z=0.0,
-                            front_hint=pose[:2, 0].copy(), mesh=mesh)
+    obs, _mesh = complete_observation(model, pose, VALUES, "cabinet_1")  # as the protocol's entities
     rep = replace_object(obs, library, CadReplacementConfig(workers=1))
     ev = evaluate_object(rep, model, pose, VALUES)
     assert ev.pose_success and ev.front_flip is False, (ev.chosen, ev.yaw_error_deg, ev.size_error)

@@ -44,3 +44,18 @@ def observe_model(
     pts = pts + rng.normal(0.0, 0.005, pts.shape)
     obs = ObjectObservation(1, "obj", model.class_name, pts, normals=nrm, support_z=float(pose[2, 3]), front_hint=view)
     return obs, mesh
+
+
+def complete_observation(model: CadModel, pose: np.ndarray, values: dict[str, float] | None,
+                         name: str = "obj") -> tuple[ObjectObservation, trimesh.Trimesh]:
+    """The posed model's complete mesh sampled as the protocol's ground-truth entities are (no noise, every side),
+    standing on z = 0 with its own front as the hint; and that mesh."""
+    from cad_replacement.observation import MESH_SAMPLES
+    from recon_core.geometry.plane_fit import sample_mesh
+
+    mesh = model.mesh(values)
+    mesh.apply_transform(pose)
+    points, normals = sample_mesh(mesh, MESH_SAMPLES, 0)
+    obs = ObjectObservation(1, name, model.class_name, points, normals=normals, support_z=0.0,
+                            front_hint=pose[:2, 0].copy(), mesh=mesh)
+    return obs, mesh
