@@ -52,7 +52,7 @@ setup(
     python_requires=">=3.10",
     entry_points={
         "console_scripts": [
-            "scene-recon = scene_recon.cli:main",
+            "scene-recon = scene_recon.cli:run_and_exit",
             "rgbd_player = ros_nodes.rgbd_player:main",
             "contact_graph_node = ros_nodes.contact_graph_node:main",
             "cad_replacer = ros_nodes.cad_replacer_node:main",

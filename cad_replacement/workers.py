@@ -17,11 +17,13 @@ A pool that cannot start or dies is logged and replaced by in-process replacemen
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import logging
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -78,11 +80,27 @@ def skip_scipy_docstring_notes() -> None:
 #: after it has started the fork server: NumPy's and SciPy's imports must not delay that), and the code's
 #: digest (the result and model stores' keys) is computed once there, not in every worker forked from it.
 _FORK_SERVER = "SCENE_RECON_CAD_FORK_SERVER"
+
+
+def _exit_without_teardown() -> None:
+    """The fork server's last step: leave without the interpreter's teardown of the CAD code it imported
+    (Open3D, SciPy, trimesh: 0.2-0.3 s after the command itself has exited, which a caller reading the
+    command's output waits for, as the fork server holds its stdout and stderr). Its own cleanup (the
+    ``finally`` blocks of its loop) has run by then; the workers it forked leave through ``os._exit``
+    already."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(0)
+
+
 if os.environ.get(_FORK_SERVER) == "1":
     skip_scipy_docstring_notes()
     from .result_store import code_digest
 
     code_digest()
+    if multiprocessing.parent_process() is None:  # the fork server itself, not a worker of a spawn pool
+        atexit.register(_exit_without_teardown)
 
 #: What the fork server imports once, so that every worker forked from it starts warm.
 _PRELOAD = ("cad_replacement.replace_object", "cad_replacement.geometry_cache", "scene_graph.blas")

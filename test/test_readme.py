@@ -100,7 +100,7 @@ def test_every_make_target_exists():
 
 def test_every_program_and_launch_file_exists():
     setup = (ROOT / "setup.py").read_text(encoding="utf-8")
-    scripts = set(re.findall(r'"([a-z_-]+) = [\w.]+:main"', setup))
+    scripts = set(re.findall(r'"([a-z_-]+) = [\w.]+:\w+"', setup))
     for cmd in COMMANDS:
         prog, args = _program(cmd)
         if prog.startswith(".venv/bin/"):
