@@ -96,6 +96,10 @@ def _exit_without_teardown() -> None:
 
 if os.environ.get(_FORK_SERVER) == "1":
     skip_scipy_docstring_notes()
+    from recon_core.lazy_import import import_open3d, import_trimesh
+
+    import_open3d()  # without Dash and Plotly (Open3D's Plotly viewer: 0.4 s), before the preloads import it
+    import_trimesh()  # without networkx (trimesh's graph helpers: 0.15 s)
     from .result_store import code_digest
 
     code_digest()

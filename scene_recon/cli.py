@@ -11,9 +11,8 @@ import os
 import sys
 import tempfile
 import threading
-import types
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import NoReturn
 
 from scene_recon import __version__
 from scene_recon.commands import COMMAND_NAMES, command_module
@@ -135,60 +134,15 @@ def check_output_folder(args: argparse.Namespace) -> None:
         raise StorageError(f"--out {out} {what} ({why.lower()}); choose another output folder")
 
 
-class _Deferred(types.ModuleType):
-    """Stands in for a module while Open3D imports it: each attribute is a ``_DeferredAttr`` (resolved
-    from the real module on first use) or a registered deferred submodule."""
-
-    def __getattr__(self, name: str) -> Any:
-        if name.startswith("__"):
-            raise AttributeError(name)
-        sub = sys.modules.get(f"{self.__name__}.{name}")
-        return sub if isinstance(sub, _Deferred) else _DeferredAttr(self.__name__, name)
-
-
-class _DeferredAttr:
-    """``module.name``, imported when first called or looked into."""
-
-    def __init__(self, module: str, name: str) -> None:
-        self._where = (module, name)
-
-    def _target(self) -> Any:
-        import importlib
-
-        module, name = self._where
-        if isinstance(sys.modules.get(module), _Deferred):
-            del sys.modules[module]
-        return getattr(importlib.import_module(module), name)
-
-    def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        return self._target()(*args, **kwargs)
-
-    def __getattr__(self, attr: str) -> Any:
-        if attr.startswith("__"):
-            raise AttributeError(attr)
-        return getattr(self._target(), attr)
-
-
-#: What ``import open3d`` loads for ``open3d.visualization.draw_plotly`` alone (0.4 s of its 0.8 s).
-_OPEN3D_UNUSED = ("dash", "plotly", "plotly.graph_objects")
-
-
 def import_open3d() -> None:
-    """Import Open3D without Dash and Plotly, which it loads for its Plotly viewer only: no command draws
-    with it (``draw_plotly`` still works, importing them on first use). Nothing changes when Open3D is
-    already imported or either package has been loaded."""
-    if "open3d" in sys.modules or any(name in sys.modules for name in _OPEN3D_UNUSED):
-        return
-    stubs = {name: _Deferred(name) for name in _OPEN3D_UNUSED}
-    sys.modules.update(stubs)
-    try:
-        import open3d  # noqa: F401
-    except ImportError:
-        pass  # the command that needs it says so when it imports it
-    finally:
-        for name, stub in stubs.items():
-            if sys.modules.get(name) is stub:
-                del sys.modules[name]
+    """Import Open3D without Dash and Plotly, and trimesh without networkx, which they load for their
+    Plotly viewer and graph helpers alone (``recon_core.lazy_import``: both still work, importing them on
+    first use). Nothing changes for a library already imported."""
+    from recon_core.lazy_import import import_open3d as _open3d
+    from recon_core.lazy_import import import_trimesh
+
+    _open3d()
+    import_trimesh()
 
 
 def run_and_exit() -> NoReturn:
