@@ -195,6 +195,12 @@ class ExtractionConfig(Settings):
     face_majority: bool = setting(True, doc="a mesh face belongs to the entity of two of its three vertices")
     #: Entities with fewer mesh vertices are dropped.
     min_entity_voxels: int = 50
+    #: A thing entity whose mesh area is under this share of the most surface one segmented frame showed
+    #: of its instance (pixels x (z / f)^2) is dropped: the map's votes gave what its frames saw to other
+    #: entities, and what it keeps is a shred (a wrong class flickered onto part of an object in two frames
+    #: on bench-office draw 1: 64 vertices of a `sofa`; docs/STAGE2_MAPPING.md). 0 disables (the paper).
+    min_observed_share: float = setting(0.25, min=0.0, max=1.0, doc="share of the surface one frame showed of "
+                                        "a thing instance its entity must own in the map (0: any)")
     #: Also output the reconstructed surface no entity claims, as entity 0 of class -1 ("unknown"):
     #: evaluation must know that geometry was observed there even if it was not recognised.
     include_unknown: bool = True

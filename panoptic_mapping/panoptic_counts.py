@@ -20,6 +20,9 @@ class PanopticCounts:
         self._alias = np.zeros(1024, np.int64)  # alias[l] = parent label (0: l is canonical)
         self.last_update: dict[int, int] = {}  # canonical label -> frame index of the last change
         self.instance_frames: dict[int, int] = {}  # instance -> number of segmented frames that saw it
+        #: instance -> the most surface (m^2, fronto-parallel: pixels x (z / f)^2) one frame's segments of it
+        #: showed: what its entity should own of the map if the map's votes agree with those frames
+        self.instance_area: dict[int, float] = {}
 
     # ------------------------------------------------------------------ labels
     def new_label(self) -> int:
@@ -70,6 +73,7 @@ class PanopticCounts:
     def merge_instances(self, src: int, dst: int) -> None:
         """Every vote for instance `src` goes to `dst`."""
         self.instance_frames[dst] = self.instance_frames.get(dst, 0) + self.instance_frames.pop(src, 0)
+        self.instance_area[dst] = max(self.instance_area.get(dst, 0.0), self.instance_area.pop(src, 0.0))
         for counts in self.phi.values():
             for (c, p) in [k for k in counts if k[1] == src]:
                 counts[(c, dst)] = counts.get((c, dst), 0) + counts.pop((c, p))
@@ -108,6 +112,8 @@ class PanopticCounts:
             "stuff": np.array(sorted(self.stuff_instance.items()), np.int64).reshape(-1, 2),
             "last_update": np.array(sorted(self.last_update.items()), np.int64).reshape(-1, 2),
             "instance_frames": np.array(sorted(self.instance_frames.items()), np.int64).reshape(-1, 2),
+            "instance_area_ids": np.array(sorted(self.instance_area), np.int64),
+            "instance_area": np.array([self.instance_area[k] for k in sorted(self.instance_area)], np.float64),
         }
 
     @classmethod
@@ -121,4 +127,6 @@ class PanopticCounts:
         self.stuff_instance = {int(c): int(p) for c, p in a["stuff"]}
         self.last_update = {int(k): int(v) for k, v in a["last_update"]}
         self.instance_frames = {int(k): int(v) for k, v in a.get("instance_frames", np.zeros((0, 2)))}
+        self.instance_area = {int(k): float(v) for k, v in zip(a.get("instance_area_ids", np.zeros(0)),
+                                                                a.get("instance_area", np.zeros(0)), strict=True)}
         return self
