@@ -995,6 +995,11 @@ class MapperNode(Node):
         if self._checkpoint_thread is not None and self._checkpoint_thread.is_alive():
             return  # the previous one is still being written
         with self.lock:
+            # asked again under the lock: a service (reset_map, load_map) may have replaced the map since,
+            # and a reset one is never checkpointed (as on shutdown); the newest checkpoint of a map that was
+            # reset while this step waited for the lock had been an empty map (seen in CI)
+            if not cp.due(self.mapper.frames_integrated):
+                return
             snapshot = self._snapshot()  # a copy: the write below runs while mapping goes on
         cp.start(int(snapshot.meta["frames_integrated"]))  # the next interval counts from this snapshot
         self._checkpoint_thread = threading.Thread(target=self._write_checkpoint, args=(snapshot,),
