@@ -58,9 +58,8 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-from cad_replacement.cad.model import CadModel, Link
+from cad_replacement.cad.model import CadModel, Link, join_link_meshes
 from recon_core.geometry.box import GravityBox
-from recon_core.geometry.transforms import as_mesh
 from recon_core.kinematic_tree import Joint
 
 from .observation import ObjectObservation
@@ -329,9 +328,7 @@ class ModelGeometry:
         posed = model.posed_link_meshes()
         poses = model.link_poses()
         names = tuple(lk.name for lk in model.links)
-        # ``model.mesh()`` from the posed copies already made (it would pose every link again)
-        parts = [m for m in posed.values() if len(m.faces)]
-        whole = as_mesh(trimesh.util.concatenate(parts)) if parts else trimesh.Trimesh()
+        whole = join_link_meshes(posed)  # ``model.mesh()`` without posing every link again
         if len(whole.faces) == 0:
             raise ValueError(f"model {model.model_id!r} has no geometry")
         scene = raycasting_scene(whole)

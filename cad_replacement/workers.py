@@ -23,7 +23,6 @@ import logging
 import multiprocessing
 import os
 import signal
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -82,29 +81,18 @@ def skip_scipy_docstring_notes() -> None:
 _FORK_SERVER = "SCENE_RECON_CAD_FORK_SERVER"
 
 
-def _exit_without_teardown() -> None:
-    """The fork server's last step: leave without the interpreter's teardown of the CAD code it imported
-    (Open3D, SciPy, trimesh: 0.2-0.3 s after the command itself has exited, which a caller reading the
-    command's output waits for, as the fork server holds its stdout and stderr). Its own cleanup (the
-    ``finally`` blocks of its loop) has run by then; the workers it forked leave through ``os._exit``
-    already."""
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):
-            stream.flush()
-    os._exit(0)
-
-
 if os.environ.get(_FORK_SERVER) == "1":
     skip_scipy_docstring_notes()
-    from recon_core.lazy_import import import_open3d, import_trimesh
+    from recon_core.lazy_import import import_geometry_libraries
+    from recon_core.process_exit import exit_without_teardown
 
-    import_open3d()  # without Dash and Plotly (Open3D's Plotly viewer: 0.4 s), before the preloads import it
-    import_trimesh()  # without networkx (trimesh's graph helpers: 0.15 s)
+    import_geometry_libraries()  # before the preloads import them: without Dash, Plotly and networkx
     from .result_store import code_digest
 
     code_digest()
     if multiprocessing.parent_process() is None:  # the fork server itself, not a worker of a spawn pool
-        atexit.register(_exit_without_teardown)
+        # its last exit handler: the loop's own clean-up has run, the workers it forked leave by os._exit
+        atexit.register(exit_without_teardown, 0, run_exit_handlers=False)
 
 #: What the fork server imports once, so that every worker forked from it starts warm.
 _PRELOAD = ("cad_replacement.replace_object", "cad_replacement.geometry_cache", "scene_graph.blas")

@@ -82,4 +82,12 @@ def import_trimesh() -> None:
     import_deferring("trimesh", TRIMESH_UNUSED)
 
 
-__all__ = ["OPEN3D_UNUSED", "TRIMESH_UNUSED", "import_deferring", "import_open3d", "import_trimesh"]
+def import_geometry_libraries() -> None:
+    """Open3D and trimesh, each without the packages above (what `scene-recon replace` and the CAD fork
+    server load first)."""
+    import_open3d()
+    import_trimesh()
+
+
+__all__ = ["OPEN3D_UNUSED", "TRIMESH_UNUSED", "import_deferring", "import_geometry_libraries", "import_open3d",
+           "import_trimesh"]

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import atexit
 import codecs
 import contextlib
 import logging
@@ -134,17 +133,6 @@ def check_output_folder(args: argparse.Namespace) -> None:
         raise StorageError(f"--out {out} {what} ({why.lower()}); choose another output folder")
 
 
-def import_open3d() -> None:
-    """Import Open3D without Dash and Plotly, and trimesh without networkx, which they load for their
-    Plotly viewer and graph helpers alone (``recon_core.lazy_import``: both still work, importing them on
-    first use). Nothing changes for a library already imported."""
-    from recon_core.lazy_import import import_open3d as _open3d
-    from recon_core.lazy_import import import_trimesh
-
-    _open3d()
-    import_trimesh()
-
-
 def run_and_exit() -> NoReturn:
     """The ``scene-recon`` command: ``main`` on the process's arguments, then leave without the
     interpreter's teardown of what the command imported (Open3D, SciPy, trimesh, ROS: 0.2-0.3 s of every
@@ -155,11 +143,9 @@ def run_and_exit() -> NoReturn:
     code = main()
     if threading.active_count() > 1:
         sys.exit(code)
-    atexit._run_exitfuncs()
-    for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(Exception):  # a closed pipe (output piped into `head`)
-            stream.flush()
-    os._exit(code)
+    from recon_core.process_exit import exit_without_teardown
+
+    exit_without_teardown(code)
 
 
 if __name__ == "__main__":

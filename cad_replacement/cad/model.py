@@ -87,6 +87,14 @@ class Link:
         return f"Link(name={self.name!r}, faces={len(self.mesh.faces)})"
 
 
+
+def join_link_meshes(posed: Mapping[str, trimesh.Trimesh]) -> trimesh.Trimesh:
+    """Link meshes already in one frame (``CadModel.posed_link_meshes``) as one mesh, concatenated, not unioned."""
+    meshes = [m for m in posed.values() if len(m.faces)]
+    if not meshes:
+        return trimesh.Trimesh()
+    return as_mesh(trimesh.util.concatenate(meshes))
+
 @dataclass(frozen=True, eq=False)
 class CadModel:
     """A (possibly articulated) CAD model in its canonical frame with its matching features."""
@@ -207,10 +215,7 @@ class CadModel:
 
     def mesh(self, joint_values: Mapping[str, float] | None = None) -> trimesh.Trimesh:
         """Whole-object mesh (links concatenated, not unioned) in the model frame."""
-        meshes = [m for m in self.posed_link_meshes(joint_values).values() if len(m.faces)]
-        if not meshes:
-            return trimesh.Trimesh()
-        return as_mesh(trimesh.util.concatenate(meshes))
+        return join_link_meshes(self.posed_link_meshes(joint_values))
 
     def surface_motion(self, link: str, joint_values: Mapping[str, float] | None = None) -> NDArray[np.float64]:
         """Transform moving things attached to ``link`` from the closed to the given configuration.

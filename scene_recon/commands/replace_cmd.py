@@ -73,9 +73,9 @@ def run(args: argparse.Namespace) -> int:
     if n_workers > 1 and not marker.is_file():
         prestart_fork_server()
     skip_scipy_docstring_notes()  # SciPy's import-time docstring rewriting (0.1-0.3 s): help text only
-    from scene_recon.cli import import_open3d
+    from recon_core.lazy_import import import_geometry_libraries
 
-    import_open3d()  # without its Plotly viewer's Dash and Plotly (0.4 s)
+    import_geometry_libraries()  # Open3D without Dash and Plotly (0.4 s), trimesh without networkx (0.15 s)
     from cad_replacement.cad.library import CadLibrary
     from cad_replacement.physical_check import PhysicalCheck
     from cad_replacement.replacer import CadReplacer

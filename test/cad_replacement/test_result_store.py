@@ -201,7 +201,7 @@ def test_the_replace_command_line_loads_no_other_stage_before_its_work():
 
 
 def test_open3d_imported_for_replace_leaves_dash_and_plotly_for_later():
-    code = ("import sys; from scene_recon.cli import import_open3d; import_open3d(); "
+    code = ("import sys; from recon_core.lazy_import import import_open3d; import_open3d(); "
             "print('open3d' in sys.modules, 'dash' in sys.modules, 'plotly' in sys.modules); "
             "import open3d as o3d, numpy as np; "
             "m = sys.modules['open3d.visualization.draw_plotly']; "
