@@ -99,7 +99,6 @@ def test_segmentation_service_over_dds(tmp_path):
         while pub.get_subscription_count() < 1:
             assert time.monotonic() < deadline, "oracle did not subscribe to the label topic"
             executor.spin_once(timeout_sec=0.05)
-        pub.publish(labels_to_image(gt_labels, STAMP_NS, "camera"))
 
         def call(client_name: str, request: SegmentImage.Request) -> SegmentImage.Response:
             future = clients[client_name].call_async(request)
@@ -111,7 +110,17 @@ def test_segmentation_service_over_dds(tmp_path):
         depth = np.full((H, W), 2.0, np.float32)
         ok = SegmentImage.Request(color=rgb_to_image(rgb, STAMP_NS, "camera", encoding="bgr8"), has_depth=True,
                                   depth=depth_to_image(depth, STAMP_NS, "camera"))
-        resp = call("oracle", ok)
+        # The publisher counting the oracle's subscription does not mean the oracle has matched the publisher:
+        # a reliable, volatile sample written before it has is never delivered (discovery is not symmetric), and
+        # a loaded machine can deliver it after the request's `label_wait_s`. Either way the oracle answers "no
+        # ground-truth label image" (a CI run did): publish again and ask again, counting the extra requests.
+        retries = 0
+        while True:
+            pub.publish(labels_to_image(gt_labels, STAMP_NS, "camera"))
+            resp = call("oracle", ok)
+            if resp.success or "no ground-truth label image" not in resp.message or retries == 4:
+                break
+            retries += 1
         assert resp.success, resp.message
         labels = image_to_labels(resp.labels)
         assert labels.shape == (H, W) and stamp_to_ns(resp.labels.header.stamp) == STAMP_NS
@@ -151,4 +160,5 @@ def test_segmentation_service_over_dds(tmp_path):
     log = (tmp_path / "oracle.log").read_text()
     assert "backend oracle" in log, log
     reports = [tuple(map(int, m)) for m in re.findall(r"latency: (\d+) request\(s\), (\d+) failed", log)]
-    assert tuple(map(sum, zip(*reports, strict=True))) == (4, 2), log  # periodic reports cover every request
+    # periodic reports cover every request (and the retries of the first, failed each)
+    assert tuple(map(sum, zip(*reports, strict=True))) == (4 + retries, 2 + retries), log
