@@ -91,6 +91,23 @@ class StageCache:
         return json.dumps([map_key, to_dict(graph_cfg)], sort_keys=True, default=str)
 
 
+def stage_configs(spec: RunSpec) -> tuple[Any, Any, Any, Any]:
+    """The mapper, data, contact-graph and CAD configs of ``spec`` (config files, preset, its overrides):
+    each through its stage's schema, so an unknown or out-of-range key raises ``ConfigError`` naming it."""
+    from cad_replacement.replace_config import CadReplacementConfig
+    from panoptic_mapping.config import MapperConfig
+    from panoptic_mapping.dataio import DataInputConfig
+    from scene_graph.config import load_scene_graph_config
+
+    mapper_cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml",
+                             spec.overrides("mapper", {"mode": spec.mode, "checkpoint.enabled": False}))
+    data_cfg = load_config(DataInputConfig, CONFIG_DIR / "data.yaml",
+                           spec.overrides("data", {"topics.labels": "/ground_truth/panoptic_labels"}))
+    graph_cfg = load_scene_graph_config(None, spec.overrides("scene_graph"))
+    cad_cfg = build_config(CadReplacementConfig, {}, spec.overrides("cad", {"method": spec.method}))
+    return mapper_cfg, data_cfg, graph_cfg, cad_cfg
+
+
 def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = None,
                  cache: StageCache | None = None) -> dict[str, Any]:
     """Map, build the graph, replace and score one configuration; returns times (s) and figures.
@@ -100,15 +117,11 @@ def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = N
     from cad_replacement.cad.library import CadLibrary
     from cad_replacement.export import export_scene
     from cad_replacement.physical_check import PhysicalCheck
-    from cad_replacement.replace_config import CadReplacementConfig
     from cad_replacement.replacer import CadReplacer
-    from panoptic_mapping.config import MapperConfig
-    from panoptic_mapping.dataio import DataInputConfig
     from panoptic_mapping.pipeline import map_recording, write_map_outputs
     from panoptic_mapping.segmentation.config import SegmentationConfig
     from panoptic_mapping.segmentation.factory import make_segmenter
     from scene_graph.builder import ContactGraphBuilder
-    from scene_graph.config import load_scene_graph_config
     from scene_graph.joints import load_support_joints
     from scene_recon.evaluation.graph_ground_truth import ground_truth_graph, seen_entity_ids
     from scene_recon.evaluation.graph_metrics import evaluate_graph
@@ -117,12 +130,7 @@ def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = N
     from scene_recon.synthetic.scene import GroundTruthScene
 
     out.mkdir(parents=True, exist_ok=True)
-    mapper_cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml",
-                             spec.overrides("mapper", {"mode": spec.mode, "checkpoint.enabled": False}))
-    data_cfg = load_config(DataInputConfig, CONFIG_DIR / "data.yaml",
-                           spec.overrides("data", {"topics.labels": "/ground_truth/panoptic_labels"}))
-    graph_cfg = load_scene_graph_config(None, spec.overrides("scene_graph"))
-    cad_cfg = build_config(CadReplacementConfig, {}, spec.overrides("cad", {"method": spec.method}))
+    mapper_cfg, data_cfg, graph_cfg, cad_cfg = stage_configs(spec)
     seg_cfg = SegmentationConfig(backend="oracle")
     seg_cfg.oracle.ground_truth, seg_cfg.oracle.level, seg_cfg.oracle.seed = str(gt), spec.noise, spec.noise_seed
     library = library or CadLibrary(seeds_per_class=spec.seeds_per_class)

@@ -120,15 +120,49 @@ class ProtocolSpec:
             raise ValueError("variant labels must be distinct")
 
 
+def parse_variant(tokens: list[str]) -> Variant:
+    """A variant from the command line: ``LABEL [mode=full|baseline] SECTION.KEY=VALUE ...``, e.g.
+    ``label-keyframes mapper.keyframes.label_every_n_frames=0``. SECTION is a preset section (mapper, data,
+    scene_graph, cad); VALUE is read as YAML (``0.02``, ``false``, ``[1, 2]``). Every key is checked against
+    its stage's schema here, before hours of runs, not when the first run of the variant starts."""
+    import yaml
+
+    from recon_core.config import PRESET_SECTIONS
+    from recon_core.errors import ConfigError
+    from scene_recon.bench.pipeline import stage_configs
+
+    if not tokens or "=" in tokens[0]:
+        raise ConfigError("--variant needs a label first, then SECTION.KEY=VALUE overrides "
+                          "(e.g. --variant no-fill mapper.extraction.fill_radius_m=0)")
+    label, mode, extra = tokens[0], "full", {}
+    for token in tokens[1:]:
+        key, sep, text = token.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--variant {label}: {token!r} is not SECTION.KEY=VALUE")
+        if key == "mode":
+            mode = text
+            continue
+        section, dot, dotted = key.partition(".")
+        if section not in PRESET_SECTIONS or not dot or not dotted:
+            raise ConfigError(f"--variant {label}: {key!r} must start with one of the sections "
+                              f"{', '.join(PRESET_SECTIONS)} followed by a dotted key")
+        extra.setdefault(section, {})[dotted] = yaml.safe_load(text)
+    if mode not in MODES:
+        raise ConfigError(f"--variant {label}: mode must be one of {', '.join(MODES)}, got {mode!r}")
+    stage_configs(RunSpec(label, mode=mode, extra=extra))  # unknown keys and bad values raise here
+    return Variant(label, mode, extra)
+
+
 def protocol_spec(name: str, draws: int | None = None, scenes: list[str] | None = None,
-                  paper_birth: bool = False, gt_entities: bool = True, fine_surface: bool = False) -> ProtocolSpec:
+                  paper_birth: bool = False, gt_entities: bool = True, fine_surface: bool = False,
+                  extra_variants: tuple[Variant, ...] = ()) -> ProtocolSpec:
     """The named protocol, optionally with more (or fewer) draws, other scenes, and as further variants
-    the paper's birth rule and the fine surface of small things."""
+    the paper's birth rule, the fine surface of small things and any ``extra_variants`` (``--variant``)."""
     if name not in PROTOCOLS:
         raise ValueError(f"unknown protocol {name!r}; known: {', '.join(PROTOCOLS)}")
     base_scenes, base_draws = PROTOCOLS[name]
     variants = (*DEFAULT_VARIANTS, *((PAPER_BIRTH_VARIANT,) if paper_birth else ()),
-                *((FINE_SURFACE_VARIANT,) if fine_surface else ()))
+                *((FINE_SURFACE_VARIANT,) if fine_surface else ()), *extra_variants)
     return ProtocolSpec(tuple(scenes or base_scenes), tuple(range(draws)) if draws else base_draws, variants,
                         gt_entities)
 

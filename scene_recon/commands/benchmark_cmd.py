@@ -33,6 +33,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fine-surface", action="store_true",
                    help="robustness: also run the full mapper with small things on the finer TSDF "
                    "(fine_surface.enabled, opt-in), side by side on the same draws")
+    p.add_argument("--variant", nargs="+", action="append", metavar="TOKEN", default=[],
+                   help="robustness: also run LABEL [mode=full|baseline] SECTION.KEY=VALUE ... side by side on the "
+                   "same draws (repeatable; sections mapper, data, scene_graph, cad; e.g. --variant label-keyframes "
+                   "mapper.keyframes.label_every_n_frames=0)")
     p.add_argument("--out", required=True, help="report folder (created; files in it are replaced)")
     p.add_argument("--long-frames", type=int, default=2000, metavar="N",
                    help="full suite: frames of the long sequence for the per-frame cost (default 2000)")
@@ -47,6 +51,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.suite.startswith("robustness"):
         return _robustness(args, progress)
+    if args.variant or args.paper_birth or args.fine_surface:
+        from recon_core.errors import ConfigError
+
+        raise ConfigError("--variant, --paper-birth and --fine-surface belong to --suite robustness (or "
+                          "robustness-quick); the quick and full suites sweep their own knobs")
 
     files = run_suite(args.suite, Path(args.out), progress, long_frames=args.long_frames)
     for kind, path in files.items():
@@ -57,13 +66,20 @@ def run(args: argparse.Namespace) -> int:
 
 def _robustness(args: argparse.Namespace, progress) -> int:
     from recon_core.errors import ConfigError
-    from scene_recon.bench.robustness import protocol_spec, run_protocol, summary_lines, write_protocol_report
+    from scene_recon.bench.robustness import (
+        parse_variant,
+        protocol_spec,
+        run_protocol,
+        summary_lines,
+        write_protocol_report,
+    )
 
     if args.draws is not None and args.draws < 1:
         raise ConfigError(f"--draws must be at least 1, got {args.draws}")
+    extra = tuple(parse_variant(tokens) for tokens in args.variant)
     try:
         spec = protocol_spec("quick" if args.suite == "robustness-quick" else "full", args.draws, args.scenes,
-                             paper_birth=args.paper_birth, fine_surface=args.fine_surface)
+                             paper_birth=args.paper_birth, fine_surface=args.fine_surface, extra_variants=extra)
     except ValueError as exc:
         raise ConfigError(str(exc)) from exc
     results = run_protocol(spec, Path(args.out), progress)

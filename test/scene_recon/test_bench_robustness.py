@@ -13,6 +13,7 @@ from scene_recon.bench.robustness import (
     ProtocolSpec,
     Variant,
     aggregate,
+    parse_variant,
     protocol_spec,
     run_protocol,
     stats,
@@ -76,6 +77,29 @@ def test_protocol_specs_validate_their_scenes_draws_and_variants():
         ProtocolSpec(("bench-small",), (0, 0))
     with pytest.raises(ValueError):
         ProtocolSpec(("bench-small",), (0,), (Variant("x", "other"),))
+
+
+def test_command_line_variants_are_typed_checked_against_the_schemas_and_run_beside_the_defaults():
+    from recon_core.errors import ConfigError
+
+    v = parse_variant(["label-keyframes", "mapper.keyframes.label_every_n_frames=0", "cad.front_ae_factor=0.25",
+                       "mapper.fine_surface.enabled=true"])
+    assert v == Variant("label-keyframes", "full", {"mapper": {"keyframes.label_every_n_frames": 0,
+                                                                "fine_surface.enabled": True},
+                                                     "cad": {"front_ae_factor": 0.25}})
+    assert parse_variant(["plain-baseline", "mode=baseline"]) == Variant("plain-baseline", "baseline", {})
+    spec = protocol_spec("full", extra_variants=(v,))
+    assert [x.label for x in spec.variants] == ["full", "baseline", "label-keyframes"]
+    with pytest.raises(ConfigError, match="label_evry"):  # a typo names itself before any run starts
+        parse_variant(["typo", "mapper.keyframes.label_evry_n_frames=0"])
+    with pytest.raises(ConfigError, match="sections"):
+        parse_variant(["x", "mapping.tsdf.voxel_size_m=0.03"])
+    with pytest.raises(ConfigError, match="label first"):
+        parse_variant(["mapper.tsdf.voxel_size_m=0.03"])
+    with pytest.raises(ConfigError, match="mode"):
+        parse_variant(["x", "mode=fast"])
+    with pytest.raises(ConfigError, match="SECTION.KEY=VALUE"):
+        parse_variant(["x", "mapper.tsdf.voxel_size_m"])
 
 
 def test_the_noise_draw_is_part_of_a_maps_identity():
