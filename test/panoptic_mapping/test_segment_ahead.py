@@ -35,6 +35,8 @@ def _map(bag, ahead: int):
     cfg = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml")
     cfg.depth_segmentation.min_segment_pixels = 30  # 160x120 frames
     cfg.fusion.min_segment_points = 40
+    # label propagation on every 3rd frame (the default is keyframes only): many label frames to segment ahead
+    cfg.keyframes.label_every_n_frames = 3
     seg = SegmentationConfig(backend="oracle")
     seg.oracle.ground_truth, seg.oracle.level, seg.oracle.seed = str(ground_truth_path(bag)), "default", 0
     data = DataInputConfig()
