@@ -895,7 +895,16 @@ class MapperNode(Node):
                 "last_checkpoint_s": round(cp.last_cost_s, 3) if cp else 0.0,
                 # frames in the newest checkpoint written: what a restarted (resume:=true) mapper starts from
                 "checkpoint_frames": self.checkpoint_frames,
-                "gravity": self.mapper.gravity.get("note", "")}
+                "gravity": self.mapper.gravity.get("note", ""),
+                # whether keyframes can get labels now: a bag played before this says "ready" maps its first
+                # keyframes while the service is still starting (`seg_startup_wait_s` holds them meanwhile)
+                "segmentation_service": self.segmentation_state()}
+
+    def segmentation_state(self) -> str:
+        """The segmentation service as this node sees it: "ready", "missing" or "disabled" (geometry only)."""
+        if not self.use_segmentation:
+            return "disabled"
+        return "ready" if self.seg_client.service_is_ready() else "missing"
 
     #: Counters of frames skipped as unusable (no pose, no camera info, bad image, an image whose partner was lost).
     SKIP_COUNTERS = ("no_tf", "no_camera_info", "bad_image", "unpaired_depth", "unpaired_color")
@@ -907,10 +916,6 @@ class MapperNode(Node):
         c = self.counters
         skipped = sum(c[k] for k in self.SKIP_COUNTERS)
         unlabelled = sum(c[k] for k in self.UNLABELLED_COUNTERS)
-        if not self.use_segmentation:
-            service = "disabled"
-        else:
-            service = "ready" if self.seg_client.service_is_ready() else "missing"
         h = diag.Health(hardware_id=self._camera_frame, values={
             diag.KEY_INPUT_RATE: self.input_rate.rate_hz(), diag.KEY_LATENCY: self.integrate_ms.median_ms(),
             "segmentation_latency_ms": self.segmentation_ms.median_ms(),
@@ -919,7 +924,7 @@ class MapperNode(Node):
             diag.KEY_DROPPED: c["dropped_backlog"], diag.KEY_SKIPPED: skipped, diag.KEY_QUEUE: self._queued(),
             "pending_segmentations": len(self.pending), "keyframes_without_labels": unlabelled,
             "poses_extrapolated": c["tf_extrapolated"],
-            "segmentation_service": service, "unpublished_changes": bool(self._changed),
+            "segmentation_service": self.segmentation_state(), "unpublished_changes": bool(self._changed),
             "checkpoints": self.checkpointer.saved if self.checkpointer else 0, diag.KEY_LAST_ERROR: self.last_error})
         if self._recent.grew("dropped", c["dropped_backlog"]):
             h.escalate(diag.WARN, "dropping frames (cannot keep up)")
@@ -929,7 +934,7 @@ class MapperNode(Node):
             h.escalate(diag.WARN, "TF lags behind the images (poses extrapolated)")
         if self._recent.grew("unlabelled", unlabelled):
             h.escalate(diag.WARN, "keyframes mapped without labels (segmentation missing, slow or failing)")
-        if service == "missing":
+        if h.values["segmentation_service"] == "missing":
             h.escalate(diag.WARN, f"segmentation service {self.seg_client.srv_name} missing")
         if self._publish_failed:
             h.escalate(diag.ERROR, self.last_error)

@@ -105,6 +105,7 @@ def test_mapper_node_maps_a_tilted_map_frame_in_a_gravity_aligned_frame(tmp_path
     # every frame mapped, none lost to the wait; outputs in the aligned frame, announced on /tf_static
     assert meta["frames_integrated"] == 16, (meta["frames_integrated"], log[-2000:])
     assert statuses[-1]["frame"] == "map_gravity" and statuses[-1]["held_for_gravity"] == 0
+    assert statuses[-1]["segmentation_service"] == "disabled"  # use_segmentation:=false (tools wait for "ready")
     assert run["entities"] and run["entities"][-1].header.frame_id == "map_gravity"
     assert np.allclose(run["statics"][("map", "map_gravity")], np.linalg.inv(alignment), atol=1e-6)
     assert json.loads((tmp_path / "tilted" / "entities.json").read_text())["map_frame"] == "map_gravity"
