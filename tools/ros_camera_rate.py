@@ -92,12 +92,14 @@ NODES_BEFORE_PLAYER = ("segmentation_service", "panoptic_mapper", "contact_graph
 
 
 def graph_ready(monitor, names: set[str]) -> bool:
-    """Every node but the player is up: its name is in the ROS graph, and the mapper reports its status and sees
-    the segmentation service (its first keyframes would otherwise wait for it)."""
-    status = monitor.snapshot().status or {}
-    if status.get("segmentation_service") not in ("ready", "disabled"):
+    """Every node but the player is up: its name is in the ROS graph, the mapper reports its status, and the
+    segmentation service is offered (the mapper's first keyframes would otherwise wait for it; a mapper of this
+    code also says it sees it, `segmentation_service` in its status; older ones do not say)."""
+    status = monitor.snapshot().status
+    if status is None or status.get("segmentation_service", "ready") not in ("ready", "disabled"):
         return False
-    return names <= set(monitor.node.get_node_names())
+    services = {name for name, _types in monitor.node.get_service_names_and_types()}
+    return "/segment_image" in services and names <= set(monitor.node.get_node_names())
 
 
 def one_run(bag: str, out: Path, rate: float, live_order: bool, drain_timeout_s: float, quiet: bool,

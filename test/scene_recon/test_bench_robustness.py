@@ -98,7 +98,7 @@ def test_command_line_variants_are_typed_checked_against_the_schemas_and_run_bes
         parse_variant(["mapper.tsdf.voxel_size_m=0.03"])
     with pytest.raises(ConfigError, match="mode"):
         parse_variant(["x", "mode=fast"])
-    with pytest.raises(ConfigError, match="SECTION.KEY=VALUE"):
+    with pytest.raises(ConfigError, match=r"SECTION\.KEY=VALUE"):
         parse_variant(["x", "mapper.tsdf.voxel_size_m"])
 
 
