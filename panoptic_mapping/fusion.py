@@ -247,7 +247,7 @@ def _drop_stuff_foreground(geo: np.ndarray, was_edge: np.ndarray, mask_of: np.nd
 
     # the stuff masks labelling a segment; an edge pixel in one joined it through `pan` (rescue, absorption)
     thing = np.asarray(is_thing, bool)
-    stuff_masks = np.unique(mask_of[(mask_of > 0)])
+    stuff_masks = np.unique(mask_of[mask_of > 0])
     stuff_masks = stuff_masks[~thing[stuff_masks]]
     if stuff_masks.size == 0:
         return geo, size_g
@@ -265,16 +265,16 @@ def _drop_stuff_foreground(geo: np.ndarray, was_edge: np.ndarray, mask_of: np.nd
     min_ref = max(6.0, 0.25 * k * k)  # a fit needs a real patch of the mask around the pixel
     thr = np.maximum(np.float32(cfg.stuff_front_ratio) * z, np.float32(cfg.stuff_front_min_m))
     drop = np.zeros(geo.shape, bool)
+
+    def box(img: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(img, cv2.CV_64F, win, normalize=False, borderType=cv2.BORDER_CONSTANT)
+
     for m in stuff_masks.tolist():
         here = joined & (pan == m)
         if not np.any(here):
             continue
         ref = ((pan[::step, ::step] == m) & (zc > 0)).astype(np.float64)
         d = np.where(ref > 0, 1.0 / np.maximum(zc, 1e-6), 0.0)
-
-        def box(img: np.ndarray) -> np.ndarray:
-            return cv2.boxFilter(img, cv2.CV_64F, win, normalize=False, borderType=cv2.BORDER_CONSTANT)
-
         s1, su, sv = box(ref), box(ref * uu), box(ref * vv)
         suu, suv, svv = box(ref * uu * uu), box(ref * uu * vv), box(ref * vv * vv)
         sd, sud, svd = box(d), box(d * uu), box(d * vv)

@@ -896,8 +896,7 @@ class MapperNode(Node):
                 # frames in the newest checkpoint written: what a restarted (resume:=true) mapper starts from
                 "checkpoint_frames": self.checkpoint_frames,
                 "gravity": self.mapper.gravity.get("note", ""),
-                # whether keyframes can get labels now: a bag played before this says "ready" maps its first
-                # keyframes while the service is still starting (`seg_startup_wait_s` holds them meanwhile)
+                # whether keyframes can get labels now (tools start a bag once this says "ready")
                 "segmentation_service": self.segmentation_state()}
 
     def segmentation_state(self) -> str:

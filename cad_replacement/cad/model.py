@@ -87,13 +87,13 @@ class Link:
         return f"Link(name={self.name!r}, faces={len(self.mesh.faces)})"
 
 
-
 def join_link_meshes(posed: Mapping[str, trimesh.Trimesh]) -> trimesh.Trimesh:
     """Link meshes already in one frame (``CadModel.posed_link_meshes``) as one mesh, concatenated, not unioned."""
     meshes = [m for m in posed.values() if len(m.faces)]
     if not meshes:
         return trimesh.Trimesh()
     return as_mesh(trimesh.util.concatenate(meshes))
+
 
 @dataclass(frozen=True, eq=False)
 class CadModel:
