@@ -141,12 +141,23 @@ class MapperNodeConfig(Settings):
     #: mapped without labels. After that, a missing service never holds integration up.
     segmentation_startup_wait_s: float = setting(
         5.0, min=0.0, doc="until the service was first seen, a keyframe waits this long (s) for it")
+    #: The node's own work (integration, publishing) runs on a thread of its own (`_mapping_loop`); the executor
+    #: only hands over messages, service requests and timers. rclpy's multi-threaded executor rebuilds its wait
+    #: set in Python for each callback: in a 30 Hz bag run its spinning thread alone used about as much CPU as
+    #: the mapping loop (4.9 s against 4.8 s), in the same process and under the same interpreter lock. The
+    #: events executor (rclpy.experimental, C++) does that work without the lock: 226-229 of 300 frames
+    #: integrated against 184-207 with the multi-threaded one, same code otherwise, interleaved runs (docs/ROS.md).
+    executor: str = setting("events", choices=("events", "multi_threaded"),
+                            doc="the node's executor: events (rclpy.experimental.EventsExecutor, one thread) or "
+                            "multi_threaded (rclpy's MultiThreadedExecutor, 5 threads)")
     tf_wait_s: float = setting(0.5, min=0.0, doc="how long (s) a frame waits for its pose and camera info")
     tf_reliable: bool = setting(False, doc="subscribe /tf reliable (a played recording: no pose is lost while "
                                 "discovery completes; matches reliable TF publishers only)")
     #: Reliable TF is complete but not always prompt: beside 1.5 MB image pairs, a TF sample lost on the
     #: way is resent at the writer's next heartbeat (Fast DDS: every 3 s), and measured on 200 played
     #: 640x480 frames, 9-17 frames gave up waiting after 0.5 s with their pose 1-3 s behind (none at 4 s).
+    #: Since 2026-11-27 a best-effort reader beside the reliable one hands over the samples after such a gap
+    #: at once (`ros_nodes.tf_listener`): a frame waits this long only when no later sample came either.
     tf_wait_reliable_s: float = setting(4.0, min=0.0, doc="with tf_reliable: how long (s) a frame waits for its "
                                         "pose and camera info (a lost sample is resent at the next heartbeat)")
     publish_period_s: float = setting(2.0, min=0.0, min_exclusive=True,
@@ -204,6 +215,7 @@ class MapperNode(Node):
         self.seg_timeout_s = settings.segmentation_timeout_s
         self.seg_startup_wait_s = settings.segmentation_startup_wait_s
         self.in_order = settings.in_order
+        self.executor_kind = settings.executor  # read by ros_nodes.runner
         self._seg_seen = False
         self.tf_wait_s = max(settings.tf_wait_s, settings.tf_wait_reliable_s) if settings.tf_reliable \
             else settings.tf_wait_s
@@ -245,11 +257,11 @@ class MapperNode(Node):
             self.checkpointer = Checkpointer(store, self.config.checkpoint)
             if settings.resume:
                 self._resume(store)
-        # inputs run on callback groups of their own (other executor threads), so TF and images keep
-        # arriving while a frame is being integrated; TF has a group to itself: sharing one with
-        # the image stream starved it (frames then all lacked poses); services have their own group
+        # integration runs on its own thread (`_mapping_loop`), so TF and images keep arriving meanwhile. With
+        # the multi-threaded executor (`executor`), inputs run on callback groups of their own; TF has a group to
+        # itself: sharing one with the image stream starved it (frames then all lacked poses); services have
+        # their own group. The events executor runs every callback on its one thread, in order of arrival.
         inputs = MutuallyExclusiveCallbackGroup()
-        self.map_group = MutuallyExclusiveCallbackGroup()
         services = MutuallyExclusiveCallbackGroup()
         self.tf = TFListener(self, callback_group=MutuallyExclusiveCallbackGroup(), reliable=settings.tf_reliable)
         # camera topics: RELIABLE or BEST_EFFORT, whatever the driver offers (ros_nodes.sensor_subscription)
@@ -313,11 +325,10 @@ class MapperNode(Node):
         if self.graph_topic:
             self.create_subscription(ContactGraph, self.graph_topic, self._on_graph, LATCHED,
                                      callback_group=MutuallyExclusiveCallbackGroup())
-        steady_timer(self, 0.01, self._process, self.map_group)
-        # publishing shares the map group with integration: run beside it (its own group) the mesh-to-message
-        # conversion competed for the interpreter with integration and the services, and service answers
-        # under load went from < 1 s to 2-6 s (test_node_faults); its duty cycle is capped (PUBLISH_DUTY)
-        steady_timer(self, self.publish_period_s, self._publish, self.map_group)
+        # integration and publishing run on a thread of their own (`_mapping_loop`), not on executor timers
+        self._loop_stop = threading.Event()
+        self._wake = threading.Event()  # a frame, a segmentation answer or a service leaving wakes the loop
+        self._loop_thread: threading.Thread | None = None
         steady_timer(self, settings.status_period_s, self._report, inputs)
         # back-pressure for a played recording (rgbd_player's pace_topic): which frames are still to be done
         self.pub_progress = self.create_publisher(String, PROGRESS_TOPIC, STATUS)
@@ -326,6 +337,8 @@ class MapperNode(Node):
         steady_timer(self, self.PROGRESS_PERIOD_S, self._publish_progress, MutuallyExclusiveCallbackGroup())
         self.diagnostics = diag.NodeDiagnostics(self, "panoptic mapping", self.health, callback_group=inputs)
         self._publish_alignment()  # a resumed map keeps its frame
+        self._loop_thread = threading.Thread(target=self._mapping_loop, name="mapping-loop", daemon=True)
+        self._loop_thread.start()
         self.get_logger().info(f"data root {self.data_root}; checkpoints "
                                + (f"every {self.config.checkpoint.every_n_frames} frames / "
                                   f"{self.config.checkpoint.every_s:g} s" if self.checkpointer else "disabled"))
@@ -371,6 +384,7 @@ class MapperNode(Node):
         finally:
             with self._waiting_lock:
                 self._services_waiting -= 1
+            self._wake.set()
 
     def _timing(self, t0: float) -> str:
         return (f"({1000 * self.last_service_wait_s:.0f} ms waiting for the map, "
@@ -400,6 +414,7 @@ class MapperNode(Node):
 
     def _enqueue(self, color: Image, depth: Image) -> None:
         self.queue.append((color, depth, time.monotonic()))
+        self._wake.set()
         stamp = stamp_to_ns(depth.header.stamp)
         self._newest_received = stamp if self._newest_received is None else max(self._newest_received, stamp)
         self.counters["received"] += 1
@@ -431,6 +446,56 @@ class MapperNode(Node):
             return None
 
     # ------------------------------------------------------------------ processing
+    #: The loop's longest sleep while nothing can be done (s): the period the frame at the head of the queue
+    #: is looked at while it waits for its pose or camera info (a new frame or a segmentation answer wakes it).
+    LOOP_IDLE_S = 0.01
+
+    def _mapping_loop(self) -> None:
+        """Integration (`_process`) and publishing, one step after another, until the node stops.
+
+        A thread, not a 10 ms executor timer: the executor only hands over messages, service requests and
+        timers, so the events executor's single thread (`executor`) is never held by an integration, and no
+        step waits for the executor to hand it a timer (in a 30 Hz bag run, instrumented, rclpy's
+        multi-threaded executor ran the timer about 7 times a second during the start-up stall, docs/ROS.md).
+        The loop runs a step as soon as the previous one ends and sleeps only when a step changed nothing.
+        Publishing stays on this thread, as it shared the integration's callback group before: beside
+        integration, its mesh-to-message conversion competed with integration and the services for the
+        interpreter (service answers under load went from < 1 s to 2-6 s, test_node_faults); its duty cycle is
+        capped (PUBLISH_DUTY)."""
+        next_publish = time.monotonic() + self.publish_period_s
+        while not self._loop_stop.is_set():
+            self._wake.clear()
+            before = self._loop_state()
+            try:
+                self._process()
+                if time.monotonic() >= next_publish:
+                    next_publish = time.monotonic() + self.publish_period_s
+                    self._publish()
+            except Exception as exc:  # one failing step never ends the loop (the node would map nothing more)
+                self.counters["loop_errors"] += 1
+                self.last_error = f"mapping loop: {type(exc).__name__}: {exc}"
+                self.get_logger().error(self.last_error, throttle_duration_sec=5.0)
+                self._loop_stop.wait(self.LOOP_IDLE_S)
+                continue
+            if self._loop_state() == before:
+                self._wake.wait(self.LOOP_IDLE_S)
+
+    def _loop_state(self) -> tuple:
+        """What a loop step that did something changes."""
+        return len(self.queue), len(self._released), len(self.pending), len(self._held), self.mapper.frames_integrated
+
+    def _stop_loop(self) -> None:
+        """Stop the mapping loop after its current step."""
+        self._loop_stop.set()
+        self._wake.set()
+        thread = self._loop_thread
+        if thread is not None and thread.is_alive() and thread is not threading.current_thread():
+            thread.join(timeout=120)
+
+    def destroy_node(self) -> None:
+        self._stop_loop()
+        super().destroy_node()
+
     def _process(self) -> None:
         if self._services_waiting:
             return  # a service waits for the map: let it have it first
@@ -533,7 +598,9 @@ class MapperNode(Node):
                 self._seg_seen = True
                 self.mapper.mark_keyframe(frame)
                 req = SegmentImage.Request(color=color_msg, has_depth=True, depth=depth_msg)
-                self.pending.append(_Pending(frame, color_msg, depth_msg, self.seg_client.call_async(req),
+                future = self.seg_client.call_async(req)
+                future.add_done_callback(lambda _f: self._wake.set())  # the answer wakes the mapping loop
+                self.pending.append(_Pending(frame, color_msg, depth_msg, future,
                                              time.monotonic(), ahead or segment_ahead(self.mapper, frame)))
                 self.counters["segmentation_calls"] += 1
                 return
@@ -1022,6 +1089,7 @@ class MapperNode(Node):
 
     def on_shutdown(self) -> None:
         """Checkpoint what was integrated since the last checkpoint (the runner calls this on SIGINT/SIGTERM)."""
+        self._stop_loop()
         if self._checkpoint_thread is not None:
             self._checkpoint_thread.join(timeout=60)
         with self.lock:  # frames still waiting for the gravity verdict are mapped (geometry) before the checkpoint

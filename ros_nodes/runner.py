@@ -55,10 +55,20 @@ def init_ros(args: list[str] | None = None) -> threading.Event:
     return stop
 
 
+def make_executor(node: Node, threads: int = 1) -> Executor:
+    """The executor `node` asks for (its `executor_kind`: "events" for rclpy's C++ events executor), else a
+    multi-threaded one on `threads` threads (one: single-threaded)."""
+    if getattr(node, "executor_kind", "") == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor(context=node.context)
+    return MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
+
+
 def spin_until_stopped(node: Node, stop: threading.Event, threads: int = 1) -> None:
     """Spin `node` (on `threads` executor threads) until `stop` is set or rclpy shuts down; the callbacks
     still running when it stops are finished before this returns."""
-    executor: Executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 else SingleThreadedExecutor()
+    executor = make_executor(node, threads)
     executor.add_node(node)
     try:
         while not stop.is_set() and rclpy.ok():

@@ -19,7 +19,8 @@ K = (60.0, 60.0, 31.5, 23.5)
 LATE_S = 1.5  # each pose is sent this long after its images
 
 
-def test_mapper_waits_for_poses_that_come_late_over_reliable_tf(tmp_path):
+@pytest.mark.parametrize("executor", ["events", "multi_threaded"])
+def test_mapper_waits_for_poses_that_come_late_over_reliable_tf(tmp_path, executor):
     import rclpy
     from sensor_msgs.msg import CameraInfo, Image
     from std_msgs.msg import String
@@ -40,7 +41,7 @@ def test_mapper_waits_for_poses_that_come_late_over_reliable_tf(tmp_path):
     mapper = subprocess.Popen([sys.executable, "-m", "ros_nodes.mapper_node", "--ros-args",
                                "-p", f"data_root:={tmp_path}", "-p", "use_segmentation:=false",
                                "-p", "gravity_check:=false", "-p", "tf_reliable:=true", "-p", "in_order:=true",
-                               "-p", "status_period_s:=0.5"],
+                               "-p", "status_period_s:=0.5", "-p", f"executor:={executor}"],
                               env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     rclpy.init()
     node = rclpy.create_node("late_tf_camera")

@@ -54,3 +54,45 @@ def test_time_range_says_when_tf_has_arrived_up_to_a_stamp():
         pub_node.destroy_node()
         sub_node.destroy_node()
         rclpy.shutdown()
+
+
+def test_a_reliable_listener_takes_each_sample_once_and_best_effort_ones_too():
+    """`reliable=True` (a played recording) subscribes /tf twice: reliable, so no sample is lost while discovery
+    completes, and best effort, so the samples after one lost beside big images are handed over at once instead
+    of waiting in the reliable reader for the writer's next heartbeat (3 s). Both deliver a reliable writer's
+    samples: each is held once. A best-effort writer (which a reliable reader does not match) is heard too."""
+    import rclpy
+    from tf2_msgs.msg import TFMessage
+
+    from ros_nodes.conversions import make_transform_stamped
+    from ros_nodes.qos import TF_DYNAMIC, TF_LISTEN
+    from ros_nodes.tf_listener import TFListener
+
+    os.environ["ROS_DOMAIN_ID"] = str(domain_id("spare1"))
+    rclpy.init()
+    pub_node, sub_node = rclpy.create_node("tf_talker"), rclpy.create_node("tf_listener_reliable")
+    try:
+        listener = TFListener(sub_node, reliable=True)
+        reliable = pub_node.create_publisher(TFMessage, "/tf", TF_DYNAMIC)
+        best_effort = pub_node.create_publisher(TFMessage, "/tf", TF_LISTEN)
+        assert spin_until(sub_node, lambda: reliable.get_subscription_count() >= 2
+                          and best_effort.get_subscription_count() >= 1, 10)
+        spin_until(sub_node, lambda: False, 0.5)  # the readers match the writers in turn
+
+        def send(pub, i: int) -> None:
+            pose = make_transform([0.1 * i, 0.0, 1.5], [0.0, 0.0, 0.0, 1.0])
+            pub.publish(TFMessage(transforms=[make_transform_stamped(pose, "map", "cam", T0 + i * PERIOD)]))
+
+        for i in range(5):
+            send(reliable, i)
+        assert spin_until(sub_node, lambda: listener.time_range("map", "cam") == (T0, T0 + 4 * PERIOD), 10)
+        spin_until(sub_node, lambda: False, 0.3)  # the second reader's copies arrive too
+        assert len(listener.buffer._dynamic["cam"].stamps) == 5  # each sample once
+        for i in range(5, 8):
+            send(best_effort, i)
+        assert spin_until(sub_node, lambda: listener.time_range("map", "cam") == (T0, T0 + 7 * PERIOD), 10)
+        np.testing.assert_allclose(listener.lookup("map", "cam", T0 + 6 * PERIOD)[0, 3], 0.6, atol=1e-12)
+    finally:
+        pub_node.destroy_node()
+        sub_node.destroy_node()
+        rclpy.shutdown()

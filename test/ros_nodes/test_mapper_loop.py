@@ -1,0 +1,61 @@
+"""The mapper node integrates on a thread of its own (`MapperNode._mapping_loop`), not on an executor timer: in a
+30 Hz bag run rclpy's multi-threaded executor handed a 10 ms timer to a thread about 7 times a second. The loop
+must outlive a failing step (counted `loop_errors`, reported as the last error), wake for a queued frame without
+waiting out its idle period, and stop when the node is destroyed."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+from testsupport.ros import domain_id
+
+pytestmark = pytest.mark.ros
+
+
+def test_the_mapping_loop_outlives_a_failing_step_and_stops_with_the_node(tmp_path):
+    import rclpy
+
+    from ros_nodes.mapper_node import MapperNode
+
+    os.environ["ROS_DOMAIN_ID"] = str(domain_id("spare2"))
+    rclpy.init(args=["--ros-args", "-p", f"data_root:={tmp_path}", "-p", "use_segmentation:=false",
+                     "-p", "gravity_check:=false"])
+    try:
+        node = MapperNode()
+        steps: list[float] = []
+        original = node._process
+
+        def failing_once() -> None:
+            steps.append(time.monotonic())
+            if len(steps) == 1:
+                raise RuntimeError("a broken step")
+            original()
+
+        node._process = failing_once  # type: ignore[method-assign]
+        deadline = time.monotonic() + 10
+        while len(steps) < 5 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(steps) >= 5, steps  # stepping on after the failure
+        assert node.counters["loop_errors"] == 1
+        assert "a broken step" in node.last_error
+        # idle, the loop sleeps (here up to 5 s) between steps; a frame that arrives wakes it at once
+        node.LOOP_IDLE_S = 5.0  # type: ignore[misc]
+        time.sleep(0.3)
+        n = len(steps)
+        from sensor_msgs.msg import Image
+
+        frame = Image()
+        frame.header.stamp.sec = 1
+        node._enqueue(frame, frame)
+        deadline = time.monotonic() + 2.0
+        while len(steps) == n and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert len(steps) > n and steps[n] - steps[n - 1] < 4.0
+        thread = node._loop_thread
+        assert thread is not None and thread.is_alive() and thread.name == "mapping-loop"
+        node.destroy_node()
+        assert not thread.is_alive()
+    finally:
+        rclpy.shutdown()
