@@ -17,6 +17,10 @@ import open3d.core as o3c
 
 from panoptic_mapping.config import TSDFConfig
 
+#: What Open3D's extract_triangle_mesh raises when no voxel is confident enough for a surface.
+_EMPTY_MESH_ERROR = "has shape {0}"
+
+
 _CPU = o3c.Device("CPU:0")
 _BIAS = 1 << 20  # block coordinates are packed into 21 bits each (+-2^20 blocks: far beyond any room)
 _MASK21 = (1 << 21) - 1
@@ -200,7 +204,12 @@ class LabeledTSDF:
             return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int32)
         try:
             mesh = self.vbg.extract_triangle_mesh(weight_threshold=float(self.cfg.mesh_weight_threshold))
-        except RuntimeError:  # Open3D raises instead of returning an empty mesh when no surface is confident
+        except RuntimeError as exc:
+            # Open3D raises instead of returning an empty mesh when no surface is confident ("Tensor has shape
+            # {0}, but is expected ..." from setting the empty mesh's attributes). Any other failure is raised:
+            # read as "no surface", it had a node publish an empty map to its consumers.
+            if _EMPTY_MESH_ERROR not in str(exc):
+                raise
             return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int32)
         if mesh.vertex.positions.shape[0] == 0:
             return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int32)
