@@ -47,8 +47,11 @@ def test_mapper_node_checks_the_map_frames_up_with_an_imu(tmp_path):
         assert save.wait_for_service(timeout_sec=60), "mapper node did not come up"
         tf_pub.publish(TFMessage(transforms=[make_transform_stamped(imu_in_map, "map", "imu_link", 0)]))
         assert spin_until(node, lambda: imu_pub.get_subscription_count() > 0, 30), "no IMU subscription"
+        # best effort: what is sent before the mapper's reader has matched this writer in turn is lost for good
+        # (a loaded CI run kept fewer than 60 of 120): a grace period, and four times the readings the check needs
+        spin_until(node, lambda: False, 1.0)
         rng = np.random.default_rng(0)
-        for i in range(120):  # 100 Hz, with the platform's own small accelerations and noise
+        for i in range(240):  # 100 Hz, with the platform's own small accelerations and noise
             msg = Imu(header=make_header(10**9 + i * 10**7, "imu_link"))
             a = reading + rng.normal(0, 0.2, 3)
             msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z = (float(v) for v in a)
