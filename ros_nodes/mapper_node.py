@@ -146,7 +146,8 @@ class MapperNodeConfig(Settings):
     #: set in Python for each callback: in a 30 Hz bag run its spinning thread alone used about as much CPU as
     #: the mapping loop (4.9 s against 4.8 s), in the same process and under the same interpreter lock. The
     #: events executor (rclpy.experimental, C++) does that work without the lock: 226-229 of 300 frames
-    #: integrated against 184-207 with the multi-threaded one, same code otherwise, interleaved runs (docs/ROS.md).
+    #: integrated against 184-207 with the multi-threaded one, same code otherwise, interleaved runs on a loaded
+    #: machine (docs/ROS.md).
     executor: str = setting("events", choices=("events", "multi_threaded"),
                             doc="the node's executor: events (rclpy.experimental.EventsExecutor, one thread) or "
                             "multi_threaded (rclpy's MultiThreadedExecutor, 5 threads)")
@@ -156,8 +157,6 @@ class MapperNodeConfig(Settings):
     #: Reliable TF is complete but not always prompt: beside 1.5 MB image pairs, a TF sample lost on the
     #: way is resent at the writer's next heartbeat (Fast DDS: every 3 s), and measured on 200 played
     #: 640x480 frames, 9-17 frames gave up waiting after 0.5 s with their pose 1-3 s behind (none at 4 s).
-    #: Since 2026-11-27 a best-effort reader beside the reliable one hands over the samples after such a gap
-    #: at once (`ros_nodes.tf_listener`): a frame waits this long only when no later sample came either.
     tf_wait_reliable_s: float = setting(4.0, min=0.0, doc="with tf_reliable: how long (s) a frame waits for its "
                                         "pose and camera info (a lost sample is resent at the next heartbeat)")
     publish_period_s: float = setting(2.0, min=0.0, min_exclusive=True,
@@ -916,19 +915,28 @@ class MapperNode(Node):
                 now - max(start, self._behind_since) < self.publish_behind_period_s:
             return
         t0 = time.monotonic()
+        # `_changed` is cleared when the map is read, the message goes out after the conversions: meanwhile the
+        # status still says there are unpublished changes. Without this, a status sent in between reported an
+        # idle mapper whose newest entities were not out yet, and `scene-recon ros-run`, seeing the graph quiet
+        # (its last one from a publication 10 s before, a mapper behind publishes seldom), exported that
+        # older scene (a loaded CI run: 2 of 7 objects).
+        self._publishing = True
         try:
-            with self.lock:  # only the extraction needs the map; the conversions run outside
-                self._changed = False
-                ents = self.mapper.entities(with_meshes=True)
-                frames = self.mapper.frames_integrated
-            msg = self._entities_msg(ents, self.include_meshes, publishing=True, frames=frames)
-        except (RuntimeError, ValueError) as exc:  # never let one bad extraction take the node down
-            self.last_error, self._publish_failed = f"entity extraction failed: {exc}", True
-            self.get_logger().error(self.last_error, throttle_duration_sec=5.0)
-            return
-        self._publish_failed = False
-        self.pub_entities.publish(msg)
-        self._published_stamp_ns = _stamp_ns(msg.header.stamp)
+            try:
+                with self.lock:  # only the extraction needs the map; the conversions run outside
+                    self._changed = False
+                    ents = self.mapper.entities(with_meshes=True)
+                    frames = self.mapper.frames_integrated
+                msg = self._entities_msg(ents, self.include_meshes, publishing=True, frames=frames)
+            except (RuntimeError, ValueError) as exc:  # never let one bad extraction take the node down
+                self.last_error, self._publish_failed = f"entity extraction failed: {exc}", True
+                self.get_logger().error(self.last_error, throttle_duration_sec=5.0)
+                return
+            self._publish_failed = False
+            self.pub_entities.publish(msg)
+            self._published_stamp_ns = _stamp_ns(msg.header.stamp)
+        finally:
+            self._publishing = False
         self.counters["publications"] += 1
         # markers only for a listener (RViz): their per-vertex point objects cost as much as everything else
         # a publication does (half the node's publishing time in a 30 Hz bag run), and no node reads them
@@ -954,7 +962,8 @@ class MapperNode(Node):
                 "held_for_gravity": len(self._held), "frame": self.output_frame,
                 # idle = nothing queued, no keyframe waiting for labels, every change published and, where a
                 # contact graph runs, in its newest graph
-                "pending_segmentations": len(self.pending), "unpublished_changes": bool(self._changed) or behind,
+                "pending_segmentations": len(self.pending),
+                "unpublished_changes": bool(self._changed) or self._publishing or behind,
                 "graph_behind": behind,
                 "entity_publications": self.counters["publications"],
                 "counters": dict(self.counters), "checkpoints": cp.saved if cp else 0,
@@ -990,7 +999,8 @@ class MapperNode(Node):
             diag.KEY_DROPPED: c["dropped_backlog"], diag.KEY_SKIPPED: skipped, diag.KEY_QUEUE: self._queued(),
             "pending_segmentations": len(self.pending), "keyframes_without_labels": unlabelled,
             "poses_extrapolated": c["tf_extrapolated"],
-            "segmentation_service": self.segmentation_state(), "unpublished_changes": bool(self._changed),
+            "segmentation_service": self.segmentation_state(),
+            "unpublished_changes": bool(self._changed) or self._publishing,
             "checkpoints": self.checkpointer.saved if self.checkpointer else 0, diag.KEY_LAST_ERROR: self.last_error})
         if self._recent.grew("dropped", c["dropped_backlog"]):
             h.escalate(diag.WARN, "dropping frames (cannot keep up)")
@@ -1034,6 +1044,7 @@ class MapperNode(Node):
                 "held_for_gravity": len(self._held)}
 
     _newest_received: int | None = None
+    _publishing = False  # an entity publication is between reading the map and publishing (`_publish`)
 
     def _publish_progress(self) -> None:
         progress = self.progress()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import collections
 import threading
 
 import numpy as np
@@ -27,18 +26,6 @@ class TFListener:
         node.create_subscription(TFMessage, "/tf", lambda m: self._on_tf(m, False),
                                  TF_LISTEN_RELIABLE if reliable else TF_LISTEN,
                                  callback_group=callback_group)
-        if reliable:
-            # ... and best effort beside it. A reliable reader delivers in order: when one /tf sample is lost on
-            # the way (a 30 Hz bag's image fragments share the socket), every later sample waits in the reader
-            # until the writer repairs the gap at its next heartbeat (Fast DDS: every 3 s). In a 30 Hz bag run
-            # the mapper's head frame waited 2.95 s for its pose while 85 frames queued behind it (docs/ROS.md).
-            # The best-effort reader hands over what arrives at once; the reliable one still brings every sample
-            # (the early ones a best-effort reader misses before it has matched the writer), a repaired one late.
-            node.create_subscription(TFMessage, "/tf", lambda m: self._on_tf(m, False), TF_LISTEN,
-                                     callback_group=callback_group)
-        #: the (parent, child, stamp) of the dynamic samples already held: both readers deliver most samples
-        self._seen: collections.OrderedDict[tuple[str, str, int], None] = collections.OrderedDict()
-        self._seen_max = 4 * max_samples_per_edge if max_samples_per_edge else 8192
         node.create_subscription(TFMessage, "/tf_static", lambda m: self._on_tf(m, True), TF_STATIC,
                                  callback_group=callback_group)
 
@@ -64,13 +51,5 @@ class TFListener:
     def _add(self, msg: TFMessage, static: bool) -> None:
         for tr in msg.transforms:
             t, q = tr.transform.translation, tr.transform.rotation
-            stamp = stamp_to_ns(tr.header.stamp)
-            if not static:
-                key = (tr.header.frame_id, tr.child_frame_id, stamp)
-                if key in self._seen:
-                    continue  # the same sample from the other reader
-                self._seen[key] = None
-                if len(self._seen) > self._seen_max:
-                    self._seen.popitem(last=False)
-            self.buffer.add(tr.header.frame_id, tr.child_frame_id, stamp, (t.x, t.y, t.z), (q.x, q.y, q.z, q.w),
-                            static=static)
+            self.buffer.add(tr.header.frame_id, tr.child_frame_id, stamp_to_ns(tr.header.stamp),
+                            (t.x, t.y, t.z), (q.x, q.y, q.z, q.w), static=static)

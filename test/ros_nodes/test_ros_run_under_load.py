@@ -67,6 +67,6 @@ def test_a_fast_bag_on_a_loaded_machine_gives_the_offline_scene(tmp_path):
     assert meta["frames_integrated"] == FRAMES, log[-4000:]
     (ros_scene, ros_joints), (offline_scene, offline_joints) = (_scene(tmp_path / "ros" / "scene"),
                                                                 _scene(tmp_path / "offline" / "scene"))
-    assert {n: c for n, (c, *_) in ros_scene.items()} == {n: c for n, (c, *_) in offline_scene.items()}
-    assert ros_joints == offline_joints, (ros_joints, offline_joints)
+    assert {n: c for n, (c, *_) in ros_scene.items()} == {n: c for n, (c, *_) in offline_scene.items()}, log[-6000:]
+    assert ros_joints == offline_joints, (ros_joints, offline_joints, log[-4000:])
     assert any(t in ("revolute", "prismatic") for _, t in offline_joints), offline_joints
