@@ -1,5 +1,5 @@
-"""The mapper node integrates on a thread of its own (`MapperNode._mapping_loop`), not on an executor timer: in a
-30 Hz bag run rclpy's multi-threaded executor handed a 10 ms timer to a thread about 7 times a second. The loop
+"""The mapper node integrates on a thread of its own (`MapperNode._mapping_loop`), not on an executor timer, so the
+events executor's one thread is never held by an integration and no step waits to be handed a timer. The loop
 must outlive a failing step (counted `loop_errors`, reported as the last error), wake for a queued frame without
 waiting out its idle period, and stop when the node is destroyed."""
 
