@@ -14,6 +14,7 @@ import threading
 from collections.abc import Callable
 
 import rclpy
+import rclpy.logging
 from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidHandle
@@ -23,6 +24,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.timer import Timer
 
 from recon_core.ros_env import ensure_ros_environment
+from ros_nodes.dds_profile import apply_dds_profile
 from ros_nodes.parameters import warn_unknown_parameters
 
 #: How often (s) the spin loop looks at the stop flag.
@@ -41,9 +43,14 @@ def steady_timer(node: Node, period_s: float, callback: Callable[[], None],
 
 
 def init_ros(args: list[str] | None = None) -> threading.Event:
-    """rclpy.init without rclpy's signal handlers; returns the event SIGINT/SIGTERM set."""
+    """rclpy.init without rclpy's signal handlers; returns the event SIGINT/SIGTERM set. The project's Fast
+    DDS writer profile is applied to this process first (`ros_nodes.dds_profile`: a lost reliable sample is
+    resent within 0.1 s instead of 3 s)."""
     ensure_ros_environment()
+    profile = apply_dds_profile()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    log = rclpy.logging.get_logger("dds_profile")
+    (log.warning if profile.problem else log.info)(profile.note)
     stop = threading.Event()
 
     def _on_signal(_signum: int, _frame: object) -> None:
