@@ -1,6 +1,8 @@
 """The mapper node on a recording whose TF map frame is not z up (a visual SLAM's first-camera frame):
-the first frames wait for the gravity check, the map is built in a gravity-aligned child frame that
-/tf_static announces, and the entities, the saved map and its gravity record are in that frame."""
+the map is built in a gravity-aligned child frame that /tf_static announces, and the entities, the saved
+map and its gravity record are in that frame; whether the first frames are mapped while the gravity check
+reads them (the default: the map restarts in the aligned frame at the verdict) or wait for its verdict.
+A z-up frame is mapped from its first frame on, with nothing restarted."""
 
 from __future__ import annotations
 
@@ -23,11 +25,11 @@ TILT[:3, 3] = [0.3, -1.0, 2.0]
 Z = np.array([0.0, 0.0, 1.0])
 
 
-def _tilted_tum(folder, frames: int = 16):
+def _tilted_tum(folder, frames: int = 16, transform: np.ndarray | None = TILT):
     """A TUM folder of the toy room (160x120, intrinsics in camera-intrinsics.txt) with poses in TILT."""
     from testsupport.frames import toy_room_tum
 
-    toy_room_tum(folder, frames, 2 * np.pi, TILT)
+    toy_room_tum(folder, frames, 2 * np.pi, transform)
 
 
 def _angle(a, b) -> float:
@@ -88,12 +90,20 @@ def _map_over_dds(tmp_path, save_as: str, *params: str) -> dict:
     return out
 
 
-def test_mapper_node_maps_a_tilted_map_frame_in_a_gravity_aligned_frame(tmp_path):
+@pytest.mark.parametrize("map_while_checking", [True, False])
+def test_mapper_node_maps_a_tilted_map_frame_in_a_gravity_aligned_frame(tmp_path, map_while_checking):
     import trimesh
 
     _tilted_tum(tmp_path / "tum")
-    run = _map_over_dds(tmp_path, "tilted")
+    run = _map_over_dds(tmp_path, "tilted", f"gravity_map_while_checking:={str(map_while_checking).lower()}")
     meta, log, statuses = run["meta"], run["log"], run["statuses"]
+    counters = statuses[-1]["counters"]
+    if map_while_checking:  # the window's frames were mapped in the tilted frame, then again in the aligned one
+        assert counters.get("gravity_restarts") == 1 and counters.get("mapped_before_gravity_verdict", 0) >= 1, counters
+        assert "the map restarted in 'map_gravity'" in log
+    else:  # they waited for the verdict
+        assert "gravity_restarts" not in counters and "mapped_before_gravity_verdict" not in counters, counters
+    assert counters["integrated"] == 16, counters  # each frame counted once
     g = meta["gravity"]
     # the verdict: the TF frame's up is 65 deg from its +z; the map is rotated so that true up is +z
     assert g["applied"] and g["mode"] == "auto" and g["frame"] == "map_gravity" and g["parent_frame"] == "map", g
@@ -113,6 +123,21 @@ def test_mapper_node_maps_a_tilted_map_frame_in_a_gravity_aligned_frame(tmp_path
     z = trimesh.load(tmp_path / "tilted" / "meshes" / "0.ply", force="mesh", process=False).vertices[:, 2]
     counts, _ = np.histogram(z, bins=np.arange(z.min(), z.max() + 0.04, 0.04))
     assert counts.max() / len(z) > 0.3
+
+
+def test_a_z_up_frame_is_mapped_while_the_check_reads_and_never_restarted(tmp_path):
+    """The default on a z-up TF frame (REP 103): the window's frames are mapped as they come (none waits for the
+    verdict), nothing is rotated or restarted, nothing published in between."""
+    _tilted_tum(tmp_path / "tum", transform=None)
+    run = _map_over_dds(tmp_path, "upright")
+    meta, g, counters = run["meta"], run["meta"]["gravity"], run["statuses"][-1]["counters"]
+    assert not g.get("applied") and np.allclose(meta["gravity_alignment"], np.eye(4)), g
+    assert meta["frames_integrated"] == 16 and counters["integrated"] == 16, counters
+    # the verdict came after the window's 6 x 2 frames: those before it were in the map already
+    assert counters.get("mapped_before_gravity_verdict", 0) >= 6, counters
+    assert "gravity_restarts" not in counters, counters
+    assert run["statuses"][-1]["frame"] == "map" and run["entities"][-1].header.frame_id == "map"
+    assert ("map", "map_gravity") not in run["statics"]
 
 
 def test_gravity_align_false_trusts_the_tilted_frame_and_warns(tmp_path):

@@ -34,6 +34,7 @@ class _Stub:
         self.lock, self.mapper, self.queued = threading.Lock(), _Mapper(), queued
         self._behind_since = None if behind_for is None else time.monotonic() - behind_for
         self.publish_behind_period_s = behind_period
+        self._window: list | None = None  # the gravity window mapped while read (None: closed)
 
     def _queued(self) -> int:
         return self.queued
@@ -51,6 +52,18 @@ def test_a_short_queue_publishes_at_the_normal_duty() -> None:
     # last publication took 0.2 s and started 1 s ago: 0.2 / 0.3 = 0.67 s have passed
     assert _extracts(_Stub(queued=0, since_last=1.0, last_cost=0.2))
     assert _extracts(_Stub(queued=_Stub.BEHIND_FRAMES - 1, since_last=1.0, last_cost=0.2))
+
+
+def test_nothing_is_published_while_the_gravity_check_reads_mapped_frames() -> None:
+    """Frames mapped while the gravity check reads them may be mapped again in another frame at its verdict
+    (`MapperNode._close_window`): consumers get the map after it."""
+    stub = _Stub(queued=0, since_last=10.0, last_cost=0.1)
+    stub._window = ["a frame"]
+    assert not _extracts(stub)
+    stub._window = []  # open, nothing mapped yet (nothing to publish either way)
+    assert _extracts(stub)
+    stub._window, stub._changed = None, True  # (the extraction above took the change)
+    assert _extracts(stub)
 
 
 def test_a_mapper_behind_the_camera_waits_longer_between_publications() -> None:

@@ -59,8 +59,9 @@ def _run(tmp_path, *params: str, ask: bool) -> dict:
         t_end = time.monotonic()
         if not ask:
             st = out["statuses"]
+            # (frames mapped while the gravity check reads are integrated at once: the window must have closed too)
             out["integrated"] = spin_until(node, lambda: bool(st) and st[-1]["frames_integrated"] > 0
-                                           and st[-1]["queue"] == 0, 20)
+                                           and st[-1]["queue"] == 0 and st[-1]["gravity_window"] == 0, 20)
         out["waited_s"] = time.monotonic() - t_end
         fut = extract.call_async(ExtractEntities.Request(include_meshes=False))
         rclpy.spin_until_future_complete(node, fut, timeout_sec=30)
@@ -70,11 +71,16 @@ def _run(tmp_path, *params: str, ask: bool) -> dict:
     return out
 
 
-def test_a_service_asking_for_the_map_decides_the_gravity_window(tmp_path):
+#: both ways of reading the gravity window: its frames mapped as they come (the default), or held for the verdict
+WINDOW_MODES = pytest.mark.parametrize("map_while_checking", ["true", "false"])
+
+
+@WINDOW_MODES
+def test_a_service_asking_for_the_map_decides_the_gravity_window(tmp_path, map_while_checking):
     """No pause decides here (gravity_pause_s 120 s): the first extract_entities after the 8 frames
-    decides the window, maps its frames and answers entities."""
+    decides the window, maps its frames (held ones) and answers entities."""
     _short_tum(tmp_path / "tum")
-    run = _run(tmp_path, "gravity_pause_s:=120.0", ask=True)
+    run = _run(tmp_path, "gravity_pause_s:=120.0", f"gravity_map_while_checking:={map_while_checking}", ask=True)
     res, log = run["answer"], run["log"]
     assert res is not None and res.success, log[-3000:]
     assert len(res.entities.entities) > 0, (res.message, log[-3000:])
@@ -82,13 +88,16 @@ def test_a_service_asking_for_the_map_decides_the_gravity_window(tmp_path):
     assert "gravity check: the fixed frame's +z is up" in log
 
 
-def test_a_paused_short_stream_is_mapped_without_any_service_call(tmp_path):
+@WINDOW_MODES
+def test_a_paused_short_stream_is_mapped_without_any_service_call(tmp_path, map_while_checking):
     """The window decides after the stream pauses (gravity_pause_s), with no service call: the node's
     status reports the frames integrated a moment after the player stopped, not at shutdown."""
     _short_tum(tmp_path / "tum")
-    run = _run(tmp_path, "gravity_pause_s:=1.0", ask=False)
+    run = _run(tmp_path, "gravity_pause_s:=1.0", f"gravity_map_while_checking:={map_while_checking}", ask=False)
     assert run["integrated"], (run["statuses"][-1:], run["log"][-3000:])
     assert run["statuses"][-1]["frames_integrated"] >= 6 and run["statuses"][-1]["held_for_gravity"] == 0
     assert run["waited_s"] < 15
     assert run["answer"] is not None and len(run["answer"].entities.entities) > 0
     assert "asked for the map" not in run["log"]
+    if map_while_checking == "true":  # mapped as they came; the pause closed the window (publishing resumed)
+        assert "the stream paused before the window was full: the gravity window's" in run["log"], run["log"][-3000:]
