@@ -161,6 +161,8 @@ class MapperNodeConfig(Settings):
     #: Reliable TF is complete but not always prompt: beside 1.5 MB image pairs, a TF sample lost on the
     #: way is resent at the writer's next heartbeat (Fast DDS: every 3 s), and measured on 200 played
     #: 640x480 frames, 9-17 frames gave up waiting after 0.5 s with their pose 1-3 s behind (none at 4 s).
+    #: Our nodes' writers (the player's TF) send heartbeats every 0.1 s (`ros_nodes.dds_profile`); 4 s stays for
+    #: another tool's writer (`ros2 bag play` without that profile).
     tf_wait_reliable_s: float = setting(4.0, min=0.0, doc="with tf_reliable: how long (s) a frame waits for its "
                                         "pose and camera info (a lost sample is resent at the next heartbeat)")
     publish_period_s: float = setting(2.0, min=0.0, min_exclusive=True,
