@@ -11,7 +11,9 @@ holds for the 2 MB segmentation requests and their label answers.
 `config/fastdds_writers.xml` sets the default writer profile's heartbeat to 0.1 s, nothing else: no
 transport, discovery or QoS setting (ROS QoS still overrides XML QoS). It is applied to each node's own
 process (`ros_nodes.runner.init_ros`, before rclpy starts Fast DDS) only where the environment names no
-Fast DDS profile file and the middleware is Fast DDS; the caller's environment is not changed.
+Fast DDS profile file, the middleware is Fast DDS and QoS are not taken from XML
+(`RMW_FASTRTPS_USE_QOS_FROM_XML`: a profile without QoS would then reset the nodes' own); the caller's
+environment is not changed.
 `SCENE_RECON_DDS_PROFILE` names another file, or `none` leaves Fast DDS's defaults. A recording played
 by another tool (`ros2 bag play`) gets the same with `FASTDDS_DEFAULT_PROFILES_FILE` set to this file.
 """
@@ -31,6 +33,8 @@ PROFILE_ENV = "SCENE_RECON_DDS_PROFILE"
 FASTDDS_PROFILE_ENVS = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")
 #: The project's profile (installed with the default configuration).
 DEFAULT_PROFILE = CONFIG_DIR / "fastdds_writers.xml"
+#: rmw_fastrtps's switch that takes QoS from XML profiles instead of the code (the project's profile has none).
+QOS_FROM_XML_ENV = "RMW_FASTRTPS_USE_QOS_FROM_XML"
 #: The middleware the ROS 2 wheels and distributions use when RMW_IMPLEMENTATION is unset.
 DEFAULT_RMW = "rmw_fastrtps_cpp"
 
@@ -52,6 +56,11 @@ def choose_profile(environ: MutableMapping[str, str]) -> ProfileChoice:
     rmw = environ.get("RMW_IMPLEMENTATION", "") or DEFAULT_RMW
     if not rmw.startswith("rmw_fastrtps"):
         return ProfileChoice(None, f"middleware {rmw}: no Fast DDS profile applied")
+    if environ.get(QOS_FROM_XML_ENV, "").strip() not in ("", "0"):
+        # rmw_fastrtps then takes every QoS from XML profiles instead of the node's: ours names none, and would
+        # turn the nodes' reliable, transient-local outputs into Fast DDS's default QoS
+        return ProfileChoice(None, f"{QOS_FROM_XML_ENV}={environ[QOS_FROM_XML_ENV]!r}: QoS come from the user's XML "
+                             "profiles; the project's is not applied")
     choice = environ.get(PROFILE_ENV)
     if choice is not None and choice.strip().lower() in ("", "none", "off"):
         return ProfileChoice(None, f"{PROFILE_ENV}={choice!r}: Fast DDS's default writer timing")

@@ -27,6 +27,7 @@ def test_default_is_the_shipped_profile():
     assert choice.path == DEFAULT_PROFILE and DEFAULT_PROFILE.is_file() and not choice.problem
     assert env == {"FASTDDS_DEFAULT_PROFILES_FILE": str(DEFAULT_PROFILE)}
     assert apply_dds_profile({"RMW_IMPLEMENTATION": "rmw_fastrtps_dynamic_cpp"}).path == DEFAULT_PROFILE
+    assert apply_dds_profile({"RMW_FASTRTPS_USE_QOS_FROM_XML": "0"}).path == DEFAULT_PROFILE
 
 
 @pytest.mark.parametrize("env", [
@@ -35,6 +36,7 @@ def test_default_is_the_shipped_profile():
     {"FASTDDS_DEFAULT_PROFILES_FILE": ""},
     {"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"},  # not Fast DDS
     {PROFILE_ENV: "none"},
+    {"RMW_FASTRTPS_USE_QOS_FROM_XML": "1"},  # QoS from XML: a profile without QoS would reset the nodes' QoS
     {PROFILE_ENV: ""},
 ])
 def test_left_alone(env):
