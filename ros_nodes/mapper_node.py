@@ -776,20 +776,25 @@ class MapperNode(Node):
             self._report_gravity()
             return False
         mapped = self.mapper.frames_integrated
-        self.mapper = PanopticMapper(self.config, class_metas(self.class_table))
+        self._start_over(PanopticMapper(self.config, class_metas(self.class_table)))
         self.counters["integrated"] -= mapped
         self.counters["gravity_restarts"] += 1
-        self.pending.clear()  # their labels would go to the restarted map out of turn: asked for again
-        self._ahead.clear()
         self._apply_alignment(result, early)
         self._report_gravity()
         self._released.extend(window)
-        self._changed = True
-        if self.checkpointer is not None:
-            self.checkpointer.start(0)
         self.get_logger().info(f"the map restarted in {self.aligned_frame!r}: the {len(window)} frames read by the "
                                f"gravity check ({mapped} mapped in {self.map_frame!r}) go to it again")
         return True
+
+    def _start_over(self, fresh: PanopticMapper) -> None:
+        """Map into `fresh` (an empty map) from now on (caller holds the map's lock): labels asked for the old map
+        are dropped (a frame still to be mapped asks again), it is published and checkpointed from frame 0."""
+        self.mapper = fresh
+        self.pending.clear()
+        self._ahead.clear()
+        self._changed = True
+        if self.checkpointer is not None:
+            self.checkpointer.start(0)
 
     def _report_gravity(self) -> None:
         mon = self.gravity_monitor
@@ -1248,16 +1253,12 @@ class MapperNode(Node):
                 fresh.gravity = dict(self.mapper.gravity)  # the same TF frame: the check stands
             fresh.set_alignment(self.mapper.alignment, fresh.gravity)  # the same TF frame: the same up
             fresh.recentre(self.mapper.origin_offset)
-            self.mapper = fresh
-            self.pending.clear()
+            self._start_over(fresh)
             self.queue.clear()
             self._held.clear()
             self._released.clear()
             if self._window is not None:  # still reading: the frames after the reset are the window's
                 self._window = []
-            self._changed = True
-            if self.checkpointer is not None:
-                self.checkpointer.start(0)
         res.success, res.message = True, f"map reset {self._timing(t0)}"
         return res
 
