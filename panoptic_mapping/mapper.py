@@ -28,6 +28,7 @@ import numpy as np
 from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.depth_segmentation import backproject_planes, segment_depth_planes
 from panoptic_mapping.fine_surface import FineSurfaceMap, assign_fine_vertices, fine_coverage
+from panoptic_mapping.free_space import FreeSpaceViews
 from panoptic_mapping.fusion import BACKGROUND, FrameSegments, PanopticMasks, fuse
 from panoptic_mapping.image_ops import downsample_depth, downsample_labels
 from panoptic_mapping.panoptic_counts import PanopticCounts
@@ -83,6 +84,8 @@ class PanopticMapper:
         self.tsdf = LabeledTSDF(self.config.tsdf)
         fine = self.config.fine_surface
         self.fine = FineSurfaceMap(fine, self.config.tsdf) if fine.enabled else None
+        free = self.config.free_space
+        self.free_space = FreeSpaceViews(free, self.config.tsdf.voxel_size_m) if free.enabled else None
         self.counts = PanopticCounts()
         self.merge_votes: dict[tuple[int, int], int] = {}
         self.frames_integrated = 0
@@ -283,6 +286,8 @@ class PanopticMapper:
             self.counts.last_update[int(label)] = self.frames_integrated
         t["label_integration"] = time.perf_counter()
         self.tsdf.integrate_depth(depth, intr.matrix, pose, in_range=True)
+        if self.free_space is not None:
+            self.free_space.add(depth, intr.matrix, pose)
         t["integration"] = time.perf_counter()
         if self.fine is not None:
             small = self._small_label_lut(pix_labels)
@@ -327,6 +332,14 @@ class PanopticMapper:
         meta = self.classes.get(class_id)
         return bool(meta is not None and meta.is_thing and meta.category == "rigid" and meta.max_size_m is not None
                     and meta.max_size_m <= self.config.fine_surface.max_class_size_m)
+
+    def _carved_class(self, class_id: int) -> bool:
+        """A thing class whose surface the free-space test applies to (`free_space.max_class_size_m`)."""
+        limit = self.config.free_space.max_class_size_m
+        if limit <= 0:
+            return True
+        meta = self.classes.get(class_id)
+        return meta is not None and meta.max_size_m is not None and meta.max_size_m <= limit
 
     def _small_label_lut(self, pix_labels: np.ndarray) -> np.ndarray:
         """Per map label (index) whether its voted class is a small thing, for the labels in a frame."""
@@ -614,6 +627,11 @@ class PanopticMapper:
             self._revise_merged(ents, ent_v, before, canon)
         voted = ent_v > 0
         ent_v = self._fill_unclaimed(v, ent_v)
+        # the surface no label frame measured (the truncation band closing a thing seen from one side) stays
+        # the entity's, but as fringe: model fitting reads the core (`Entity.core_mesh`), panoptic quality all
+        unmeasured = self._unmeasured(v, ent_v, {e.id for e in ents if e.is_thing and self._carved_class(e.class_id)})
+        core = voted if unmeasured is None else voted & ~unmeasured
+        ent_v = self._drop_detached(v, ent_v, {e.id for e in ents if e.is_thing})
         ent_f = ent_v[f]
         owner = _face_owner(ent_f, self.config.extraction.face_majority)
         same = owner > 0
@@ -629,8 +647,8 @@ class PanopticMapper:
         for e, a, b in zip(ents, starts, ends, strict=True):
             if b <= a:
                 continue
-            # voted vertices first, the fill's fringe after them (Entity.core_vertices)
-            e.num_voxels = _set_core_first(e, v, f[a:b], voted)
+            # voted, measured vertices first, the fill's fringe and the unmeasured after them (Entity.core_vertices)
+            e.num_voxels = _set_core_first(e, v, f[a:b], core)
         if self.fine is not None:
             self._attach_fine_surfaces([e for e in ents if e.is_thing and self._small_class(e.class_id)],
                                        v, ent_v, voted, canon, lut)
@@ -667,6 +685,12 @@ class PanopticMapper:
             rest = np.flatnonzero(owner == 0)
             nearest = assign_fine_vertices(fv[rest], v, radius)
             owner[rest] = np.where(nearest >= 0, ent_v[np.maximum(nearest, 0)], 0)
+        fit_core = core
+        if self.free_space is not None and self.config.free_space.enabled and len(self.free_space):
+            # unmeasured: fringe, as on the coarse mesh
+            owned = np.flatnonzero(core & np.isin(owner, [e.id for e in ents if self._carved_class(e.class_id)]))
+            fit_core = core.copy()
+            fit_core[owned[self.free_space.carved(fv[owned])]] = False
         of = owner[ff]
         same = (of[:, 0] == of[:, 1]) & (of[:, 1] == of[:, 2]) & (of[:, 0] > 0)
         ff, fid = ff[same], of[same, 0]
@@ -679,7 +703,7 @@ class PanopticMapper:
             # judged on voted vertices alone, so the fringe fill's setting does not decide it
             if fine_coverage(v[mine], fv[used[core[used]]], radius) < cfg.min_coverage:
                 continue
-            _join_fine_surface(e, fv[used], inv.reshape(-1, 3), core[used], radius)
+            _join_fine_surface(e, fv[used], inv.reshape(-1, 3), core[used], radius, fit_core[used])
 
     def _revise_merged(self, ents: list[Entity], ent_v: np.ndarray, before: np.ndarray, canon: np.ndarray) -> None:
         """An entity that took in surface of a fragment or a split part carries the newest change of that
@@ -784,6 +808,36 @@ class PanopticMapper:
             out[ent_v == src] = dst
         return out
 
+    def _unmeasured(self, v: np.ndarray, ent_v: np.ndarray, things: set[int]) -> np.ndarray | None:
+        """Which vertices of the entities `things` the label frames looked through or measured too rarely
+        (`panoptic_mapping.free_space`): the truncation band behind a face seen from one side is unknown
+        space, not the object's surface. None: none (or the test is off)."""
+        if self.free_space is None or not self.config.free_space.enabled or not things or not len(self.free_space):
+            return None
+        idx = np.flatnonzero(np.isin(ent_v, np.fromiter(things, np.int64)))
+        hit = self.free_space.carved(v[idx])
+        if not hit.any():
+            return None
+        out = np.zeros(len(v), bool)
+        out[idx[hit]] = True
+        return out
+
+    def _drop_detached(self, v: np.ndarray, ent_v: np.ndarray, things: set[int]) -> np.ndarray:
+        """Pieces of a thing's surface beside its largest piece leave it (`extraction.detached_gap_m`)."""
+        gap = self.config.extraction.detached_gap_m
+        if gap <= 0 or not things:
+            return ent_v
+        out = ent_v
+        order = np.argsort(ent_v, kind="stable")
+        ids = ent_v[order]
+        for eid in sorted(things):  # one KD-tree per thing entity: a few dozen per map
+            idx = order[np.searchsorted(ids, eid, "left"):np.searchsorted(ids, eid, "right")]
+            drop = detached_pieces(v[idx], gap)
+            if drop.any():
+                out = out.copy() if out is ent_v else out
+                out[idx[drop]] = 0
+        return out
+
     def _fill_unclaimed(self, v: np.ndarray, ent_v: np.ndarray) -> np.ndarray:
         """Unclaimed vertices within `fill_radius_m` of a claimed one join its entity.
 
@@ -816,6 +870,8 @@ class PanopticMapper:
         arrays = {f"tsdf_{k}": v for k, v in self.tsdf.state().items()}
         if self.fine is not None:
             arrays.update({f"fine_{k}": v for k, v in self.fine.state().items()})
+        if self.free_space is not None:
+            arrays.update({f"free_{k}": v for k, v in self.free_space.state().items()})
         arrays.update({f"counts_{k}": v for k, v in self.counts.to_arrays().items()})
         mv = np.array([(a, b, n) for (a, b), n in self.merge_votes.items()], np.int64).reshape(-1, 3)
         arrays["merge_votes"] = mv
@@ -876,6 +932,8 @@ class PanopticMapper:
             mapper.tsdf.load_state({k[5:]: v for k, v in arrays.items() if k.startswith("tsdf_")})
             if mapper.fine is not None and "fine_block_keys" in arrays:
                 mapper.fine.load_state({k[5:]: v for k, v in arrays.items() if k.startswith("fine_")})
+            if mapper.free_space is not None and "free_depth_mm" in arrays:
+                mapper.free_space.load_state({k[5:]: v for k, v in arrays.items() if k.startswith("free_")})
             mapper.counts = PanopticCounts.from_arrays(
                 {k[7:]: v for k, v in arrays.items() if k.startswith("counts_")})
             mapper.merge_votes = {(int(a), int(b)): int(n) for a, b, n in arrays["merge_votes"]}
@@ -931,10 +989,11 @@ class MapSnapshot:
 
 
 def _join_fine_surface(e: Entity, fine_v: np.ndarray, fine_f: np.ndarray, fine_core: np.ndarray,
-                       radius: float) -> None:
+                       radius: float, fit_core: np.ndarray | None = None) -> None:
     """Give `e` its fine surface and keep its coarse surface only where the fine one has nothing within
     `radius` (a part the labelled frames saw too rarely stays as the coarse map has it, so a partial fine
-    surface never shrinks the object); voted vertices first (`Entity.core_vertices`)."""
+    surface never shrinks the object); voted vertices first (`Entity.core_vertices`), or the `fit_core`
+    ones among them (the voted vertices the free-space test left in the core)."""
     from scipy.spatial import cKDTree
 
     cv, cf = np.asarray(e.vertices, np.float64), np.asarray(e.faces, np.int64)
@@ -944,7 +1003,7 @@ def _join_fine_surface(e: Entity, fine_v: np.ndarray, fine_f: np.ndarray, fine_c
         uncovered = ~np.isfinite(dist)
         cf = cf[uncovered[cf].all(axis=1)] if len(cf) else cf
     verts = np.concatenate([fine_v, cv])
-    is_core = np.concatenate([fine_core, ccore])
+    is_core = np.concatenate([fine_core if fit_core is None else fit_core, ccore])
     faces = np.concatenate([fine_f, cf + len(fine_v)])
     _set_core_first(e, verts, faces, is_core)
 
@@ -1006,6 +1065,40 @@ def _majority_entity(labels: np.ndarray, entities: np.ndarray) -> np.ndarray:
     out = np.zeros(int(labels.max()) + 1, np.int64)
     out[pairs[first, 0]] = pairs[first, 1]
     return out
+
+
+def detached_pieces(points: np.ndarray, gap: float) -> np.ndarray:
+    """Boolean per point: in a piece (points linked within `gap`) other than the largest whose points lie
+    mostly outside the largest piece's footprint from above (its x-y bounds grown by `gap`) and which,
+    with every such piece, holds less than half of the points.
+
+    Pieces are linked on cells of a quarter of `gap` (centres within `gap`, so points closer than 0.57
+    `gap` are always linked and points farther than 1.43 `gap` never): a surface's points have hundreds
+    of neighbours within 20 cm, its cells a few dozen."""
+    if len(points) < 2:
+        return np.zeros(len(points), bool)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    cell = gap / 4.0
+    cells, of_point = np.unique(np.floor(points / cell).astype(np.int64), axis=0, return_inverse=True)
+    of_point = of_point.reshape(-1)
+    pairs = cKDTree((cells + 0.5) * cell).query_pairs(gap, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(cells),) * 2)
+    n, cell_piece = connected_components(graph, directed=False)
+    piece = cell_piece[of_point]
+    if n == 1:
+        return np.zeros(len(points), bool)
+    main = int(np.argmax(np.bincount(piece, minlength=n)))
+    lo = points[piece == main, :2].min(axis=0) - gap
+    hi = points[piece == main, :2].max(axis=0) + gap
+    inside = np.all((points[:, :2] >= lo) & (points[:, :2] <= hi), axis=1)
+    share_inside = np.bincount(piece, weights=inside, minlength=n) / np.bincount(piece, minlength=n)
+    beside = share_inside < 0.5
+    beside[main] = False
+    drop = beside[piece]
+    return drop if drop.sum() * 2 < len(points) else np.zeros(len(points), bool)
 
 
 def canonical_mesh_order(vertices: np.ndarray, faces: np.ndarray,

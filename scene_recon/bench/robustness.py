@@ -60,7 +60,8 @@ MODES = ("full", "baseline")
 #: so the protocol shows our rules' gain side by side on the same draws (`--paper-birth`).
 PAPER_BIRTH: dict[str, dict[str, Any]] = {
     "mapper": {"extraction.min_instance_frames": 1, "extraction.merge_fragments": False,
-               "extraction.merge_touching_share": 0.0, "extraction.min_observed_share": 0.0}}
+               "extraction.merge_touching_share": 0.0, "extraction.min_observed_share": 0.0,
+               "extraction.detached_gap_m": 0.0, "free_space.enabled": False}}
 
 
 @dataclass(frozen=True)

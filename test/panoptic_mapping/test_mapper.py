@@ -261,6 +261,8 @@ def test_fringe_fill_is_marked_after_the_voted_core(tiny_scene):
     # faces given to the entity of two of their three vertices carry a neighbour's vertex along: that vertex is
     # the neighbour's vote, not this entity's core; only the fill is compared here
     mapper.config.extraction.face_majority = False
+    # voted surface no view measured is fringe too (test_free_space): only the fill is compared here
+    mapper.config.free_space.enabled = False
     mapper.config.extraction.fill_radius_m = 0.0
     bare = {e.id: e for e in mapper.entities() if e.class_id != BACKGROUND}
     mapper.config.extraction.fill_radius_m = 0.08
