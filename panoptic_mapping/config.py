@@ -254,8 +254,8 @@ class FreeSpaceConfig(Settings):
     """Free-space evidence (`panoptic_mapping.free_space`): a thing's surface that the label frames looked
     through or measured in fewer than `min_seen` of them (the TSDF's truncation band closing a face seen
     from one side) stays the entity's but as fringe (`Entity.core_vertices`), so model fitting reads only
-    what was measured. Opt-in: over the robustness protocol's 24 scene-draws mapped pose success +4.3
-    points and box mAP -1.9, but on the real kitchen's 1000 frames it let a monitor model scaled 2x through
+    what was measured. Opt-in: over the robustness protocol's 24 scene-draws mapped pose success +4.6
+    points and box mAP -2.1, but on the real kitchen's 1000 frames it let a monitor model scaled 2x through
     stage 4's gate (median AE 21.9 mm against 19.5) and cost the TUM desk's only CAD object at stride 2
     (docs/STAGE2_MAPPING.md). `enabled: false` (the default) is the paper's extraction."""
 
