@@ -6,9 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from testsupport.tiny_room import IDS, box, render_frame, room_meshes
+from testsupport.tiny_room import IDS, box, render_frame, room_meshes, tiny_mapper_config
 
-from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
 from panoptic_mapping.mapper import PanopticMapper, detached_pieces
 from panoptic_mapping.pipeline import class_metas
@@ -54,11 +53,7 @@ def _map(meshes, gap: float) -> list:
     """Every frame's cup mask also covers the stray box (a mask spilt onto a neighbour)."""
     renderer = RaycastRenderer([*[RenderItem(m, IDS[k], name=k) for k, m in meshes.items() if k != "stray"],
                                 RenderItem(meshes["stray"], IDS["cup"], name="stray")])
-    cfg = MapperConfig(mode="full", downsample=1)
-    cfg.keyframes.enabled = False
-    cfg.static.enabled = False
-    cfg.fusion.min_segment_points = 40
-    cfg.depth_segmentation.min_segment_pixels = 30
+    cfg = tiny_mapper_config(min_segment_points=40, min_segment_pixels=30)
     cfg.extraction.detached_gap_m = gap
     mapper = PanopticMapper(cfg, class_metas())
     cls = np.array([BACKGROUND, FLOOR, TABLE, CUP, CHAIR], np.int32)

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from testsupport.tiny_room import box, render_frame, room_meshes, room_renderer
+from testsupport.tiny_room import box, render_frame, room_meshes, room_renderer, tiny_mapper_config
 
-from panoptic_mapping.config import FreeSpaceConfig, MapperConfig
+from panoptic_mapping.config import FreeSpaceConfig
 from panoptic_mapping.free_space import FreeSpaceViews
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
 from panoptic_mapping.mapper import PanopticMapper
@@ -114,11 +114,7 @@ def book_map(tmp_path_factory):
     meshes = room_meshes()
     meshes["cup"] = box([1.50, -0.10, 0.70], [BOOK_BACK_X, 0.10, 0.95])
     renderer = room_renderer(meshes)
-    cfg = MapperConfig(mode="full", downsample=1)
-    cfg.keyframes.enabled = False
-    cfg.static.enabled = False
-    cfg.fusion.min_segment_points = 50
-    cfg.depth_segmentation.min_segment_pixels = 50
+    cfg = tiny_mapper_config(min_segment_points=50, min_segment_pixels=50)
     cfg.free_space.enabled = True
     mapper = PanopticMapper(cfg, meta)
     cls = np.array([BACKGROUND, 1, 10, book, 12], np.int32)  # floor, table, book, chair

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from testsupport.tiny_room import IDS, render_frame, room_renderer
+from testsupport.tiny_room import IDS, render_frame, room_renderer, tiny_mapper_config
 
 from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.fusion import BACKGROUND, FusionConfig, PanopticMasks, fuse
@@ -38,11 +38,7 @@ def _masks(labels: np.ndarray, with_cup: bool) -> PanopticMasks:
 
 
 def _config(min_instance_frames: int = 2) -> MapperConfig:
-    cfg = MapperConfig(mode="full", downsample=1)
-    cfg.keyframes.enabled = False
-    cfg.static.enabled = False
-    cfg.fusion.min_segment_points = 150
-    cfg.depth_segmentation.min_segment_pixels = 100
+    cfg = tiny_mapper_config(min_segment_points=150, min_segment_pixels=100)
     cfg.extraction.min_instance_frames = min_instance_frames
     return cfg
 

@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from testsupport.tiny_room import EYES, IDS, INTR, render_frame, room_renderer
+from testsupport.tiny_room import EYES, IDS, INTR, render_frame, room_renderer, tiny_mapper_config
 
-from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.fusion import BACKGROUND, PanopticMasks
 from panoptic_mapping.mapper import PanopticMapper, _face_area, _segment_area
 from panoptic_mapping.panoptic_counts import PanopticCounts
@@ -39,11 +38,7 @@ def _masks(gt: np.ndarray, chair_as_sofa: bool) -> PanopticMasks:
 
 
 def _map(renderer, share: float, flicker: set[int]) -> tuple[PanopticMapper, list]:
-    cfg = MapperConfig(mode="full", downsample=1)
-    cfg.keyframes.enabled = False
-    cfg.static.enabled = False
-    cfg.fusion.min_segment_points = 40
-    cfg.depth_segmentation.min_segment_pixels = 20
+    cfg = tiny_mapper_config(min_segment_points=40, min_segment_pixels=20)
     cfg.extraction.min_observed_share = share
     mapper = PanopticMapper(cfg, class_metas())
     for i, eye in enumerate(VIEWS):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from panoptic_mapping.config import MapperConfig
 from panoptic_mapping.dataio import CameraIntrinsics, RGBDFrame
 from scene_recon.synthetic.geometry import look_at_pose
 from scene_recon.synthetic.items import RenderItem
@@ -44,3 +45,14 @@ def render_frame(renderer, eye, target=(1.6, 0.2, 0.4), index=0) -> tuple[RGBDFr
     hits, rgb = renderer.render(pose, INTR)
     frame = RGBDFrame(rgb, hits.depth.astype(np.float32), INTR, pose, index * 100_000_000, index=index)
     return frame, hits.labels.astype(np.int32)
+
+
+def tiny_mapper_config(min_segment_points: int, min_segment_pixels: int) -> MapperConfig:
+    """The full mapper for these 160x120 frames: every frame integrated with its masks (no keyframe gate, no
+    still-camera skip) and segment floors scaled to the frames' few pixels (300 points are for 640x480)."""
+    cfg = MapperConfig(mode="full", downsample=1)
+    cfg.keyframes.enabled = False
+    cfg.static.enabled = False
+    cfg.fusion.min_segment_points = min_segment_points
+    cfg.depth_segmentation.min_segment_pixels = min_segment_pixels
+    return cfg
