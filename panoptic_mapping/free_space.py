@@ -142,20 +142,27 @@ class FreeSpaceViews:
 
     # ------------------------------------------------------------------ persistence
     def state(self) -> dict[str, np.ndarray]:
+        """The views as arrays (map.npz): each view's pixels raveled one after another with its (rows,
+        columns) beside them, so views of a camera whose resolution changed mid-recording save too."""
         n = len(self.depth_mm)
-        shape = self.depth_mm[0].shape if n else (0, 0)
-        return {"depth_mm": np.stack(self.depth_mm) if n else np.zeros((0, *shape), np.uint16),
-                "near_mm": np.stack(self.near_mm) if n else np.zeros((0, *shape), np.uint16),
+        return {"depth_mm": np.concatenate([d.ravel() for d in self.depth_mm]) if n else np.zeros(0, np.uint16),
+                "near_mm": np.concatenate([d.ravel() for d in self.near_mm]) if n else np.zeros(0, np.uint16),
+                "shapes": np.array([d.shape for d in self.depth_mm], np.int64).reshape(n, 2),
                 "intrinsics": np.stack(self.intrinsics) if n else np.zeros((0, 3, 3)),
                 "poses": np.stack(self.poses) if n else np.zeros((0, 4, 4)),
                 "counters": np.array([self.stride, self.offered], np.int64)}
 
     def load_state(self, state: dict[str, np.ndarray]) -> None:
-        depth = state["depth_mm"]
-        self.depth_mm = [np.asarray(d, np.uint16) for d in depth]
-        self.near_mm = [np.asarray(d, np.uint16) for d in state["near_mm"]]
+        shapes = np.asarray(state["shapes"], np.int64).reshape(-1, 2)
+        ends = np.cumsum(shapes[:, 0] * shapes[:, 1])
+        depth, near = np.asarray(state["depth_mm"], np.uint16), np.asarray(state["near_mm"], np.uint16)
+        if len(depth) != (ends[-1] if len(ends) else 0) or len(near) != len(depth):
+            raise ValueError("free-space views: pixel count does not match the views' shapes")
+        starts = ends - shapes[:, 0] * shapes[:, 1]
+        self.depth_mm = [depth[a:b].reshape(h, w) for a, b, (h, w) in zip(starts, ends, shapes, strict=True)]
+        self.near_mm = [near[a:b].reshape(h, w) for a, b, (h, w) in zip(starts, ends, shapes, strict=True)]
         self.intrinsics = [np.asarray(k, np.float64).reshape(3, 3) for k in state["intrinsics"]]
         self.poses = [np.asarray(p, np.float64).reshape(4, 4) for p in state["poses"]]
-        if not len(self.depth_mm) == len(self.near_mm) == len(self.intrinsics) == len(self.poses):
+        if not len(self.depth_mm) == len(self.intrinsics) == len(self.poses):
             raise ValueError("free-space views: depth, intrinsics and poses differ in number")
         self.stride, self.offered = (int(x) for x in state["counters"])

@@ -95,6 +95,19 @@ def test_views_are_thinned_over_the_whole_recording_and_saved():
     assert other.stride == views.stride and other.offered == views.offered
 
 
+def test_views_of_a_camera_whose_resolution_changed_save_and_load():
+    views = _views()
+    views.add(_wall_with_plate(), K, np.eye(4))
+    views.add(np.full((60, 90), 2.0, np.float32), K, np.eye(4))  # another resolution mid-recording
+    other = _views()
+    other.load_state(views.state())
+    assert [d.shape for d in other.depth_mm] == [(40, 50), (30, 45)]
+    assert all(np.array_equal(a, b) for a, b in zip(views.near_mm, other.near_mm, strict=True))
+    empty = _views()
+    empty.load_state(_views().state())
+    assert len(empty) == 0
+
+
 def test_depth_is_stored_at_the_configured_stride():
     views = _views(FreeSpaceConfig(enabled=True, downsample=2))
     views.add(_wall_with_plate(), K, np.eye(4))
