@@ -54,17 +54,17 @@ from cad_replacement.cad.library import CadLibrary
 from cad_replacement.export import export_scene, scene_to_tree
 from cad_replacement.physical_check import PhysicalCheck
 from cad_replacement.replace_config import CadReplacementConfig
-from cad_replacement.replacer import CadReplacer
+from cad_replacement.replacer import LAYOUT, CadReplacer
 from cad_replacement.scene_model import ReplacedScene
 from cad_replacement.workers import ReplaceWorkers, resolve_workers
 from recon_core.config import Settings, setting
-from recon_core.contact_graph import ContactGraph
+from recon_core.contact_graph import ROOT_ID, ContactGraph
 from recon_core.entity import Entity
 from recon_core.errors import EntityError
 from recon_core.io import write_text_atomic
 from recon_core.kinematic_tree import KinematicTree
 from ros_nodes import diagnostics as diag
-from ros_nodes.contact_graph_node import graph_from_msg
+from ros_nodes.contact_graph_node import NODE_CATEGORY, graph_from_msg
 from ros_nodes.conversions import make_transform_stamped, matrix_to_transform, ns_to_stamp, transform_to_matrix
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, msg_to_entity
 from ros_nodes.parameters import declare_config
@@ -99,6 +99,10 @@ class CadReplacerNodeConfig(Settings):
     #: long, the scene is replaced once more from scratch (= `scene-recon replace`) and published if it differs.
     final_replace_s: float = setting(1.0, min=0.0, doc="replace from scratch after this long (s) without a new "
                                      "graph (0: never)")
+    #: A graph and its entities come on two topics, in either order. A graph whose objects' entities have
+    #: not come yet would give a scene without those objects, published and replaced a moment later.
+    entities_wait_s: float = setting(2.0, min=0.0, doc="wait up to this long (s) for the entities a new graph "
+                                     "names before replacing without them")
 
 
 class CadReplacerNode(Node):
@@ -129,6 +133,9 @@ class CadReplacerNode(Node):
         self._replaced_graph: ContactGraph | None = None  # the graph the current scene was replaced from
         self._dirty = False
         self._last = -float("inf")
+        self._graph_objects: set[int] = set()  # the object node ids of the newest graph
+        self._graph_time = -float("inf")  # when the newest graph came (monotonic s)
+        self._acted = False  # an action changed the scene since the newest input
         self.counters = {"graphs": 0, "replacements": 0, "rematched": 0, "actions": 0, "refused": 0,
                          "bad_entities": 0, "failed": 0}
         self.input_rate, self.replace_ms = diag.RateWindow(), diag.LatencyWindow()
@@ -173,14 +180,20 @@ class CadReplacerNode(Node):
             for i in msg.removed_ids:
                 self.entities.pop(int(i), None)
             self.entities.update(fresh)
-            self._dirty = self._dirty or bool(fresh) or bool(msg.removed_ids)
+            if fresh or msg.removed_ids:
+                self._dirty, self._acted = True, False
+
+    def _new_graph(self, object_ids: set[int]) -> None:
+        """Note a new graph (under the lock): a replacement is due once its objects' entities are here."""
+        self._graph_objects, self._graph_time = object_ids, time.monotonic()
+        self._dirty, self._acted = True, False
 
     def _on_graph(self, msg: ContactGraphMsg) -> None:
         with self.lock:
             if self._json_seen:  # the same graph comes as JSON too, without the typed message's losses
                 return
             self.graph_msg = msg
-            self._dirty = True
+            self._new_graph(_object_ids(msg))
         self.counters["graphs"] += 1
         self.input_rate.tick()
 
@@ -189,21 +202,27 @@ class CadReplacerNode(Node):
             self._last_input = time.monotonic()
             self._json_seen = True
             self.graph_msg = msg.data
-            self._dirty = True
+            self._new_graph(_object_ids(msg.data))
         self.counters["graphs"] += 1
         self.input_rate.tick()
 
     # ------------------------------------------------------------------ replacement
+    def _awaiting_entities(self) -> bool:
+        """Whether the newest graph names objects whose entities have not come, and may still (under the lock)."""
+        return (bool(self._graph_objects - self.entities.keys())
+                and time.monotonic() - self._graph_time < self.settings.entities_wait_s)
+
     def _maybe_replace(self) -> None:
         with self.lock:
-            final = (not self._dirty and self._incremental and self.graph_msg is not None
+            # (a scene acted on is the user's: a pass from scratch would undo the actions, so it waits for input)
+            final = (not self._dirty and self._incremental and self.graph_msg is not None and not self._acted
                      and self.settings.final_replace_s > 0
                      and time.monotonic() - self._last_input >= self.settings.final_replace_s)
             if final:
                 self.replacer = self._make_replacer()  # no result of an earlier graph carries over
                 self._incremental = False
             elif (not self._dirty or self.graph_msg is None
-                  or time.monotonic() - self._last < self.settings.min_period_s):
+                  or time.monotonic() - self._last < self.settings.min_period_s or self._awaiting_entities()):
                 return
             else:  # (without final passes every scene counts as final)
                 self._incremental = self.settings.final_replace_s > 0
@@ -211,7 +230,11 @@ class CadReplacerNode(Node):
             self._last = time.monotonic()
             graph_msg = self.graph_msg
             entities = dict(self.entities)
-            revision = self.scene.revision + 1 if self.scene is not None else 1
+            base = self.scene  # an action installed during the replacement replaces this scene
+            missing = len(self._graph_objects - entities.keys())
+        if missing:
+            self.get_logger().warning(f"{missing} object(s) of the graph came without entities within "
+                                      f"{self.settings.entities_wait_s:g} s: replacing without them")
         self._publish_status(busy=True)
         t0 = time.perf_counter()
         try:
@@ -221,19 +244,24 @@ class CadReplacerNode(Node):
         except Exception as exc:  # one bad graph must not take the node down: the last scene stays
             self.counters["failed"] += 1
             self.last_error, self._last_failed = f"replacement failed: {type(exc).__name__}: {exc}", True
-            self.get_logger().error(f"{self.last_error}; the scene of revision {revision - 1} stays")
+            self.get_logger().error(f"{self.last_error}; the current scene stays")
             self._publish_status(busy=False)
             return
         self._last_failed = False
         self.replace_ms.add(1000 * (time.perf_counter() - t0))
-        result.scene.revision = revision
         self.counters["replacements"] += 1
         self.counters["rematched"] += result.rematched
         with self.lock:
+            if final and self.scene is not base:
+                self.get_logger().info("replaced from scratch, but the scene was acted on meanwhile: it stays")
+                self._publish_status(busy=False)
+                return
             if final and self.scene is not None and self._urdf_body(result.scene) == self._urdf_body(self.scene):
                 self.get_logger().info("replaced from scratch: the same scene; revision kept")
                 self._publish_status(busy=False)
                 return
+            # (numbered here: an action may have installed a revision while this one was being replaced)
+            revision = result.scene.revision = self.scene.revision + 1 if self.scene is not None else 1
             self.records = [r.to_dict() for r in result.records]
             self._replaced_graph = graph
             self._install(result.scene)
@@ -358,6 +386,7 @@ class CadReplacerNode(Node):
             return res
         with self.lock:
             self._install(updated)
+            self._acted = True
         self.counters["actions"] += 1
         res.success, res.message, res.revision = True, f"{kind} applied", updated.revision
         return res
@@ -375,6 +404,20 @@ class CadReplacerNode(Node):
                           json.dumps({"revision": scene.revision, "objects_detail": records}, indent=1))
         res.success, res.message = True, str(urdf)
         return res
+
+
+def _object_ids(graph_msg: ContactGraphMsg | str) -> set[int]:
+    """The ids of a graph's object nodes (neither the root nor layout): the entities its replacement needs.
+    An unreadable graph names none (its replacement then reports what is wrong with it)."""
+    try:
+        if isinstance(graph_msg, str):
+            data = json.loads(graph_msg)
+            root = int(data.get("root_id", ROOT_ID))
+            return {int(n["id"]) for n in data["nodes"] if int(n["id"]) != root and n.get("category") != LAYOUT}
+        return {int(n.id) for n in graph_msg.nodes
+                if int(n.id) != int(graph_msg.root_id) and NODE_CATEGORY.get(n.node_type) != LAYOUT}
+    except (ValueError, KeyError, TypeError, AttributeError):
+        return set()
 
 
 def _pose_msg(matrix: np.ndarray) -> Pose:

@@ -50,8 +50,9 @@ def _room():
     return entities, builder.build(name="room")
 
 
-def _publish_room(node, entities, graph) -> None:
-    """Stand in for the contact graph node: publish the room's node geometry and its graph."""
+def _publish_room(node, entities, graph, graph_first_s: float = 0.0) -> None:
+    """Stand in for the contact graph node: publish the room's node geometry and its graph (with
+    `graph_first_s` > 0: the graph first, the entities that long after)."""
     from scene_recon_interfaces.msg import ContactGraph, PanopticEntityArray
     from std_msgs.msg import Header
 
@@ -63,8 +64,13 @@ def _publish_room(node, entities, graph) -> None:
     pub_graph = node.create_publisher(ContactGraph, "contact_graph", LATCHED)
     assert spin_until(node, lambda: pub_entities.get_subscription_count() > 0, 60), "node never subscribed"
     header = Header(frame_id="map")
+    if graph_first_s > 0:
+        assert spin_until(node, lambda: pub_graph.get_subscription_count() > 0, 30), "node never subscribed"
+        pub_graph.publish(graph_to_msg(graph, header))
+        spin_until(node, lambda: False, graph_first_s)
     pub_entities.publish(PanopticEntityArray(header=header, entities=[entity_to_msg(e) for e in entities]))
-    pub_graph.publish(graph_to_msg(graph, header))
+    if graph_first_s <= 0:
+        pub_graph.publish(graph_to_msg(graph, header))
 
 
 def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
@@ -144,8 +150,10 @@ def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
         unknown, _ = call_service(node, act, ApplySceneAction.Request(
             action=ApplySceneAction.Request.MOVE_OBJECT, object_name="unicorn"))
         assert not unknown.success and "unicorn" in unknown.message
-        spin_until(node, lambda: False, 0.5)
+        # the pass from scratch (due final_replace_s = 1 s after the graph) must not undo the actions
+        spin_until(node, lambda: False, 3.0)
         assert descriptions[-1].data == before
+        assert abs(joint_states[-1].position[joint_states[-1].name.index(door)] - 1.0) < 1e-6
 
         export = node.create_client(Trigger, "export_scene")
         assert export.wait_for_service(timeout_sec=10)
@@ -154,6 +162,38 @@ def test_scene_urdf_tf_and_actions_over_dds(tmp_path):
     finally:
         out = stop_client_and_node(node, proc)
     assert "scene revision 1" in out, out
+    assert "scene revision 2" not in out and "scene revision 4" not in out, out  # revisions 2, 3 are the actions
+
+
+def test_a_graph_waits_for_its_entities(tmp_path):
+    """The graph and its entities come on two topics; a graph that comes first waits for them
+    (``entities_wait_s``), so the first scene published already holds the objects."""
+    import rclpy
+    from std_msgs.msg import String
+
+    from ros_nodes.qos import LATCHED
+
+    entities, graph = _room()
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id("spare1")), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    proc = subprocess.Popen([sys.executable, "-m", "ros_nodes.cad_replacer_node", "--ros-args",
+                             "-p", "seeds_per_class:=1", "-p", f"output_dir:={tmp_path / 'scene'}",
+                             "-p", "min_period_s:=0.0", "-p", "final_replace_s:=0.0"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
+    rclpy.init()
+    node = rclpy.create_node("planner_client")
+    descriptions: list = []
+    try:
+        node.create_subscription(String, "robot_description", descriptions.append, LATCHED)
+        _publish_room(node, entities, graph, graph_first_s=1.0)
+        assert spin_until(node, lambda: bool(descriptions), 120), f"no description; node exit {proc.poll()}"
+        first = descriptions[0].data
+        assert "<!-- revision 1 -->" in first and "cup_5" in first and "fridge_3" in first
+        spin_until(node, lambda: False, 1.0)
+        assert len(descriptions) == 1
+    finally:
+        out = stop_client_and_node(node, proc)
+    assert "without them" not in out, out
 
 
 def _alive(pid: int) -> bool:
