@@ -59,3 +59,39 @@ def test_spinning_goes_on_after_an_invalid_handle(monkeypatch, threads):
         node.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+_HELD_AT_EXIT = """
+import sys, threading, time
+import open3d as o3d
+import open3d.core as o3c
+grid = o3d.t.geometry.VoxelBlockGrid(attr_names=("tsdf", "weight"), attr_dtypes=(o3c.float32, o3c.float32),
+                                     attr_channels=((1), (1)), voxel_size=0.02, block_resolution=8,
+                                     block_count=100, device=o3c.Device("CPU:0"))
+held = threading.Event()
+def hold(g=grid):  # a thread still holding the grid when the process ends, as a leaked node's map is held
+    held.set()
+    time.sleep(60)
+threading.Thread(target=hold, daemon=True).start()
+held.wait()
+del grid
+if sys.argv[1] == "switch_off":
+    from ros_nodes.runner import keep_exit_code_from_open3d
+    assert keep_exit_code_from_open3d()
+"""
+
+
+@pytest.mark.parametrize("switch", ["switch_off", "leave"])
+def test_open3d_memory_held_at_exit_does_not_set_the_exit_code(switch):
+    """Open3D ends a process whose tensors are still allocated at the end with exit code 1 (seen on a
+    mapper node after a clean SIGTERM); a node switches that off (`keep_exit_code_from_open3d`)."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("open3d")
+    proc = subprocess.run([sys.executable, "-c", _HELD_AT_EXIT, switch], capture_output=True, text=True, timeout=120)
+    if switch == "switch_off":
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    else:  # Open3D's own behaviour, which the switch exists for: if this changes, the switch may go
+        assert proc.returncode == 1 and "Memory Statistics" in proc.stdout + proc.stderr, (proc.returncode,
+                                                                                          proc.stderr[-2000:])
