@@ -409,8 +409,8 @@ class CadReplacer:
         (they take longest: articulated furniture), so the workers stay evenly busy while this process
         builds the rest. Workers start only for a scene with ``parallel_min_objects`` objects; once they
         run (warm), updates use them too. A broken pool falls back to in-process replacement."""
-        todo = [n for nid, n in graph.nodes.items() if nid != graph.root_id and n.category != LAYOUT
-                and entities.get(nid) is not None and not entities[nid].is_empty]
+        todo = [graph.nodes[nid] for nid in object_node_ids(graph)
+                if entities.get(nid) is not None and not entities[nid].is_empty]
         todo.sort(key=lambda n: -(n.box.volume if n.box is not None else 0.0))
         workers = self._workers
         if workers is not None and not workers.started and len(todo) < self.config.parallel_min_objects:
@@ -636,8 +636,13 @@ def _note_switches(scene: ReplacedScene, records: list[ReplacementRecord],
                 break
 
 
+def object_node_ids(graph: ContactGraph) -> list[int]:
+    """The graph's nodes stage 4 replaces by a model: neither the root nor layout (each needs its entity)."""
+    return [nid for nid, n in graph.nodes.items() if nid != graph.root_id and n.category != LAYOUT]
+
+
 __all__ = ["CadReplacer", "PhysicalCheck", "ReplacementRecord", "ReplacementResult", "layout_object",
-           "observed_mesh_object", "rest_on", "support_height"]
+           "object_node_ids", "observed_mesh_object", "rest_on", "support_height"]
 
 
 #: Margin (m) by which a floor slab reaches beyond the footprint of what stands on it.

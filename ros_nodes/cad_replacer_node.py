@@ -33,6 +33,7 @@ import json
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,17 +55,17 @@ from cad_replacement.cad.library import CadLibrary
 from cad_replacement.export import export_scene, scene_to_tree
 from cad_replacement.physical_check import PhysicalCheck
 from cad_replacement.replace_config import CadReplacementConfig
-from cad_replacement.replacer import LAYOUT, CadReplacer
+from cad_replacement.replacer import CadReplacer, object_node_ids
 from cad_replacement.scene_model import ReplacedScene
 from cad_replacement.workers import ReplaceWorkers, resolve_workers
 from recon_core.config import Settings, setting
-from recon_core.contact_graph import ROOT_ID, ContactGraph
+from recon_core.contact_graph import ContactGraph
 from recon_core.entity import Entity
 from recon_core.errors import EntityError
 from recon_core.io import write_text_atomic
 from recon_core.kinematic_tree import KinematicTree
 from ros_nodes import diagnostics as diag
-from ros_nodes.contact_graph_node import NODE_CATEGORY, graph_from_msg
+from ros_nodes.contact_graph_node import graph_from_msg
 from ros_nodes.conversions import make_transform_stamped, matrix_to_transform, ns_to_stamp, transform_to_matrix
 from ros_nodes.entity_conversions import DEFAULT_MAP_ROOT, msg_to_entity
 from ros_nodes.parameters import declare_config
@@ -129,7 +130,7 @@ class CadReplacerNode(Node):
         self.joint_names: list[str] = []
         self.records: list[dict] = []
         self.entities: dict[int, Entity] = {}
-        self.graph_msg: ContactGraphMsg | str | None = None  # the typed message, or the JSON text
+        self.graph: ContactGraph | None = None  # the newest graph (read from the typed message or the JSON)
         self._replaced_graph: ContactGraph | None = None  # the graph the current scene was replaced from
         self._dirty = False
         self._last = -float("inf")
@@ -183,26 +184,43 @@ class CadReplacerNode(Node):
             if fresh or msg.removed_ids:
                 self._dirty, self._acted = True, False
 
-    def _new_graph(self, object_ids: set[int]) -> None:
-        """Note a new graph (under the lock): a replacement is due once its objects' entities are here."""
-        self._graph_objects, self._graph_time = object_ids, time.monotonic()
+    def _new_graph(self, graph: ContactGraph) -> None:
+        """Make ``graph`` the newest (under the lock): a replacement is due once its objects' entities are here."""
+        self.graph = graph
+        self._graph_objects, self._graph_time = set(object_node_ids(graph)), time.monotonic()
         self._dirty, self._acted = True, False
 
+    def _read_graph(self, read: Callable[[], ContactGraph]) -> ContactGraph | None:
+        """The graph ``read`` returns, or None (counted, logged) for one that cannot be read: the last stays."""
+        try:
+            return read()
+        except Exception as exc:  # one bad graph must not take the node down
+            self.counters["failed"] += 1
+            self.last_error, self._last_failed = f"graph not readable: {type(exc).__name__}: {exc}", True
+            self.get_logger().error(f"{self.last_error}; the current scene stays")
+            return None
+
     def _on_graph(self, msg: ContactGraphMsg) -> None:
+        if self._json_seen:  # the same graph comes as JSON too, without the typed message's losses
+            return
+        graph = self._read_graph(lambda: graph_from_msg(msg))
+        if graph is None:
+            return
         with self.lock:
-            if self._json_seen:  # the same graph comes as JSON too, without the typed message's losses
+            if self._json_seen:
                 return
-            self.graph_msg = msg
-            self._new_graph(_object_ids(msg))
+            self._new_graph(graph)
         self.counters["graphs"] += 1
         self.input_rate.tick()
 
     def _on_graph_json(self, msg: String) -> None:
+        self._json_seen = True
+        graph = self._read_graph(lambda: ContactGraph.from_dict(json.loads(msg.data)))
+        if graph is None:
+            return
         with self.lock:
             self._last_input = time.monotonic()
-            self._json_seen = True
-            self.graph_msg = msg.data
-            self._new_graph(_object_ids(msg.data))
+            self._new_graph(graph)
         self.counters["graphs"] += 1
         self.input_rate.tick()
 
@@ -215,20 +233,20 @@ class CadReplacerNode(Node):
     def _maybe_replace(self) -> None:
         with self.lock:
             # (a scene acted on is the user's: a pass from scratch would undo the actions, so it waits for input)
-            final = (not self._dirty and self._incremental and self.graph_msg is not None and not self._acted
+            final = (not self._dirty and self._incremental and self.graph is not None and not self._acted
                      and self.settings.final_replace_s > 0
                      and time.monotonic() - self._last_input >= self.settings.final_replace_s)
             if final:
                 self.replacer = self._make_replacer()  # no result of an earlier graph carries over
                 self._incremental = False
-            elif (not self._dirty or self.graph_msg is None
+            elif (not self._dirty or self.graph is None
                   or time.monotonic() - self._last < self.settings.min_period_s or self._awaiting_entities()):
                 return
             else:  # (without final passes every scene counts as final)
                 self._incremental = self.settings.final_replace_s > 0
             self._dirty = False
             self._last = time.monotonic()
-            graph_msg = self.graph_msg
+            graph = self.graph
             entities = dict(self.entities)
             base = self.scene  # an action installed during the replacement replaces this scene
             missing = len(self._graph_objects - entities.keys())
@@ -238,8 +256,6 @@ class CadReplacerNode(Node):
         self._publish_status(busy=True)
         t0 = time.perf_counter()
         try:
-            graph = (ContactGraph.from_dict(json.loads(graph_msg)) if isinstance(graph_msg, str)
-                     else graph_from_msg(graph_msg))
             result = self.replacer.replace(graph, entities)
         except Exception as exc:  # one bad graph must not take the node down: the last scene stays
             self.counters["failed"] += 1
@@ -404,20 +420,6 @@ class CadReplacerNode(Node):
                           json.dumps({"revision": scene.revision, "objects_detail": records}, indent=1))
         res.success, res.message = True, str(urdf)
         return res
-
-
-def _object_ids(graph_msg: ContactGraphMsg | str) -> set[int]:
-    """The ids of a graph's object nodes (neither the root nor layout): the entities its replacement needs.
-    An unreadable graph names none (its replacement then reports what is wrong with it)."""
-    try:
-        if isinstance(graph_msg, str):
-            data = json.loads(graph_msg)
-            root = int(data.get("root_id", ROOT_ID))
-            return {int(n["id"]) for n in data["nodes"] if int(n["id"]) != root and n.get("category") != LAYOUT}
-        return {int(n.id) for n in graph_msg.nodes
-                if int(n.id) != int(graph_msg.root_id) and NODE_CATEGORY.get(n.node_type) != LAYOUT}
-    except (ValueError, KeyError, TypeError, AttributeError):
-        return set()
 
 
 def _pose_msg(matrix: np.ndarray) -> Pose:
