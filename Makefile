@@ -60,8 +60,8 @@ bench-quick: setup  ## end-to-end benchmark, quick suite (< 3 min): presets, tim
 bench-full: setup  ## end-to-end benchmark, full suite (< 30 min): sweeps, Pareto plots, skips, scaling -> $(BENCH_OUT)/full
 	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite full --out $(BENCH_OUT)/full
 
-bench-robustness: setup  ## the robustness protocol (~1 h on 2 cores): 8 scenes x 3 noise draws, full vs baseline vs the paper's birth rule -> $(BENCH_OUT)/robustness
-	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite robustness --paper-birth --out $(BENCH_OUT)/robustness
+bench-robustness: setup  ## the robustness protocol (~1 h on 2 cores): 8 scenes x 3 noise draws, full vs baseline vs the paper's birth rule vs the paper's 2 cm map -> $(BENCH_OUT)/robustness
+	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite robustness --paper-birth --single-resolution --out $(BENCH_OUT)/robustness
 
 bench-robustness-quick: setup  ## its CI subset (~5 min): 2 scenes (one outside the suite) x 3 draws, full vs baseline -> $(BENCH_OUT)/robustness-quick
 	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite robustness-quick --out $(BENCH_OUT)/robustness-quick

@@ -662,7 +662,8 @@ class PanopticMapper:
         `Entity.core_vertices`), else they are left out; an entity whose
         fine surface comes near less than `min_coverage` of its voted coarse vertices (seen in too few
         labelled frames) keeps the coarse one, the others keep it where the fine one has nothing
-        (`_join_fine_surface`)."""
+        (`_join_fine_surface`). Fine surface in a piece beside the thing (`extraction.detached_gap_m`, judged
+        with its coarse surface) is left out, as its coarse surface there was."""
         if not ents or self.fine is None:
             return
         cfg = self.config.fine_surface
@@ -691,6 +692,7 @@ class PanopticMapper:
             owned = np.flatnonzero(core & np.isin(owner, [e.id for e in ents if self._carved_class(e.class_id)]))
             fit_core = core.copy()
             fit_core[owned[self.free_space.carved(fv[owned])]] = False
+        gap = self.config.extraction.detached_gap_m
         of = owner[ff]
         same = (of[:, 0] == of[:, 1]) & (of[:, 1] == of[:, 2]) & (of[:, 0] > 0)
         ff, fid = ff[same], of[same, 0]
@@ -700,6 +702,13 @@ class PanopticMapper:
             if len(faces) == 0 or not mine.any():
                 continue
             used, inv = np.unique(faces.ravel(), return_inverse=True)
+            if gap > 0:  # a mask that spilt onto something beside the thing labelled fine surface there too
+                drop = detached_pieces(np.concatenate([fv[used], e.vertices]), gap)[:len(used)]
+                if drop.any():
+                    faces = faces[~drop[inv.reshape(-1, 3)].any(axis=1)]
+                    if len(faces) == 0:
+                        continue
+                    used, inv = np.unique(faces.ravel(), return_inverse=True)
             # judged on voted vertices alone, so the fringe fill's setting does not decide it
             if fine_coverage(v[mine], fv[used[core[used]]], radius) < cfg.min_coverage:
                 continue

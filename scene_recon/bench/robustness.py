@@ -76,13 +76,15 @@ class Variant:
         return hash((self.label, self.mode, json.dumps(self.extra, sort_keys=True)))
 
 
-#: Small things on the finer TSDF (`panoptic_mapping.fine_surface`, opt-in): `--fine-surface` runs it beside
-#: the default on the same draws, since it trades some 3D PQ for stage-4 accuracy.
-FINE_SURFACE: dict[str, dict[str, Any]] = {"mapper": {"fine_surface.enabled": True}}
+#: The paper's single-resolution map: small things on the room's TSDF and every vertex of a thing read by
+#: the fit (`fine_surface` and `free_space` off, the default until 2026-11-29). `--single-resolution` runs it
+#: beside the default on the same draws, since the fine surface trades some 3D PQ for stage-4 accuracy.
+SINGLE_RESOLUTION: dict[str, dict[str, Any]] = {"mapper": {"fine_surface.enabled": False,
+                                                           "free_space.enabled": False}}
 
 DEFAULT_VARIANTS = (Variant("full", "full"), Variant("baseline", "baseline"))
 PAPER_BIRTH_VARIANT = Variant("full/paper-extraction", "full", PAPER_BIRTH)
-FINE_SURFACE_VARIANT = Variant("full/fine-surface", "full", FINE_SURFACE)
+SINGLE_RESOLUTION_VARIANT = Variant("full/single-resolution", "full", SINGLE_RESOLUTION)
 
 #: figure -> (row key, higher is better, scale for display)
 FIGURES: dict[str, tuple[str, bool]] = {
@@ -155,15 +157,15 @@ def parse_variant(tokens: list[str]) -> Variant:
 
 
 def protocol_spec(name: str, draws: int | None = None, scenes: list[str] | None = None,
-                  paper_birth: bool = False, gt_entities: bool = True, fine_surface: bool = False,
+                  paper_birth: bool = False, gt_entities: bool = True, single_resolution: bool = False,
                   extra_variants: tuple[Variant, ...] = ()) -> ProtocolSpec:
     """The named protocol, optionally with more (or fewer) draws, other scenes, and as further variants
-    the paper's birth rule, the fine surface of small things and any ``extra_variants`` (``--variant``)."""
+    the paper's birth rule, the paper's single-resolution map and any ``extra_variants`` (``--variant``)."""
     if name not in PROTOCOLS:
         raise ValueError(f"unknown protocol {name!r}; known: {', '.join(PROTOCOLS)}")
     base_scenes, base_draws = PROTOCOLS[name]
     variants = (*DEFAULT_VARIANTS, *((PAPER_BIRTH_VARIANT,) if paper_birth else ()),
-                *((FINE_SURFACE_VARIANT,) if fine_surface else ()), *extra_variants)
+                *((SINGLE_RESOLUTION_VARIANT,) if single_resolution else ()), *extra_variants)
     return ProtocolSpec(tuple(scenes or base_scenes), tuple(range(draws)) if draws else base_draws, variants,
                         gt_entities)
 
@@ -492,7 +494,7 @@ def plot_draws(results: dict[str, Any], path: Path) -> Path | None:
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     colors = {"full": "tab:blue", "baseline": "tab:orange", PAPER_BIRTH_VARIANT.label: "tab:gray",
-              FINE_SURFACE_VARIANT.label: "tab:green"}
+              SINGLE_RESOLUTION_VARIANT.label: "tab:green"}
     modes = list(dict.fromkeys(r["mode"] for r in rows))
     width = 0.6 / max(len(modes), 1)
     for ax, key, title, scale in ((axes[0], "pq", "PQ per draw", 1.0),

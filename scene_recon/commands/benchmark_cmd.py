@@ -30,9 +30,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--paper-birth", action="store_true",
                    help="robustness: also run the full mapper with the paper's birth rule for thing entities "
                    "(every detection is born, no fragment merging), side by side on the same draws")
-    p.add_argument("--fine-surface", action="store_true",
-                   help="robustness: also run the full mapper with small things on the finer TSDF "
-                   "(fine_surface.enabled, opt-in), side by side on the same draws")
+    p.add_argument("--single-resolution", action="store_true",
+                   help="robustness: also run the full mapper with the paper's single-resolution map (small things "
+                   "on the room's TSDF, no free-space core: fine_surface and free_space off), side by side on the "
+                   "same draws")
     p.add_argument("--variant", nargs="+", action="append", metavar="TOKEN", default=[],
                    help="robustness: also run LABEL [mode=full|baseline] SECTION.KEY=VALUE ... side by side on the "
                    "same draws (repeatable; sections mapper, data, scene_graph, cad; e.g. --variant label-keyframes "
@@ -51,10 +52,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.suite.startswith("robustness"):
         return _robustness(args, progress)
-    if args.variant or args.paper_birth or args.fine_surface:
+    if args.variant or args.paper_birth or args.single_resolution:
         from recon_core.errors import ConfigError
 
-        raise ConfigError("--variant, --paper-birth and --fine-surface belong to --suite robustness (or "
+        raise ConfigError("--variant, --paper-birth and --single-resolution belong to --suite robustness (or "
                           "robustness-quick); the quick and full suites sweep their own knobs")
 
     files = run_suite(args.suite, Path(args.out), progress, long_frames=args.long_frames)
@@ -79,7 +80,8 @@ def _robustness(args: argparse.Namespace, progress) -> int:
     extra = tuple(parse_variant(tokens) for tokens in args.variant)
     try:
         spec = protocol_spec("quick" if args.suite == "robustness-quick" else "full", args.draws, args.scenes,
-                             paper_birth=args.paper_birth, fine_surface=args.fine_surface, extra_variants=extra)
+                             paper_birth=args.paper_birth, single_resolution=args.single_resolution,
+                             extra_variants=extra)
     except ValueError as exc:
         raise ConfigError(str(exc)) from exc
     results = run_protocol(spec, Path(args.out), progress)

@@ -119,9 +119,9 @@ def test_depth_is_stored_at_the_configured_stride():
 BOOK_BACK_X = 1.52  # the book stands on the table, x 1.50-1.52: its front faces the cameras, its back does not
 
 
-@pytest.fixture(scope="module")
-def book_map(tmp_path_factory):
-    """A 2 cm book standing on the tiny room's table, mapped from ten views in front of it, free space on."""
+def _map_book(fine: bool) -> PanopticMapper:
+    """A 2 cm book standing on the tiny room's table, mapped from ten views in front of it, free space on;
+    `fine`: small things on the 5 mm grid as well (`fine_surface`, the default)."""
     meta = class_metas()
     book = next(k for k, v in meta.items() if v.name == "book")
     meshes = room_meshes()
@@ -129,6 +129,7 @@ def book_map(tmp_path_factory):
     renderer = room_renderer(meshes)
     cfg = tiny_mapper_config(min_segment_points=50, min_segment_pixels=50)
     cfg.free_space.enabled = True
+    cfg.fine_surface.enabled = fine
     mapper = PanopticMapper(cfg, meta)
     cls = np.array([BACKGROUND, 1, 10, book, 12], np.int32)  # floor, table, book, chair
     eyes = [(0.4, y, z) for y in (-0.6, -0.3, 0.0, 0.3, 0.6) for z in (1.2, 1.6)]
@@ -136,6 +137,12 @@ def book_map(tmp_path_factory):
         frame, gt = render_frame(renderer, eye, target=(1.51, 0.0, 0.8), index=i)
         mapper.integrate(frame, PanopticMasks(gt.astype(np.int32), cls, cls > 1, np.ones(5)))
     return mapper
+
+
+@pytest.fixture(scope="module")
+def book_map():
+    """The book on the room's 2 cm grid alone: its truncation band is what the free-space test carves."""
+    return _map_book(fine=False)
 
 
 def _book(mapper: PanopticMapper, **settings) -> tuple[np.ndarray, np.ndarray]:
@@ -169,3 +176,14 @@ def test_a_saved_map_keeps_its_views(book_map, tmp_path):
     for a, b in zip(_book(again, min_seen=2), _book(book_map), strict=True):
         assert np.array_equal(np.sort(a, axis=0), np.sort(b, axis=0))
     _book(book_map, min_seen=0)
+
+
+def test_with_the_fine_surface_the_books_core_is_its_true_thickness():
+    """The default map (5 mm surface of small things, free space on): what fitting reads of the 2 cm book lies
+    within a few millimetres of its true faces, where the 2 cm grid alone closes it centimetres behind."""
+    _, core = _book(_map_book(fine=True))
+    assert len(core) >= 100
+    lo, hi = np.percentile(core[:, 0], [1, 99])
+    assert lo >= 1.49 and hi <= BOOK_BACK_X + 0.008, (lo, hi)
+    _, coarse_core = _book(_map_book(fine=False))
+    assert np.percentile(coarse_core[:, 0], 99) > BOOK_BACK_X + 0.015  # the 2 cm grid alone: centimetres behind

@@ -66,10 +66,10 @@ def test_protocol_specs_validate_their_scenes_draws_and_variants():
     assert any(s.startswith("gen-") for s in quick.scenes)  # a scene outside the benchmark suite
     full = protocol_spec("full", paper_birth=True)
     assert {v.label for v in full.variants} == {"full", "baseline", "full/paper-extraction"}
-    fine = protocol_spec("full", fine_surface=True)
-    assert {v.label for v in fine.variants} == {"full", "baseline", "full/fine-surface"}
-    (variant,) = [v for v in fine.variants if v.label == "full/fine-surface"]
-    assert variant.extra == {"mapper": {"fine_surface.enabled": True}}
+    single = protocol_spec("full", single_resolution=True)
+    assert {v.label for v in single.variants} == {"full", "baseline", "full/single-resolution"}
+    (variant,) = [v for v in single.variants if v.label == "full/single-resolution"]
+    assert variant.extra == {"mapper": {"fine_surface.enabled": False, "free_space.enabled": False}}
     assert sum(s.startswith("bench-") for s in full.scenes) == 4 and sum(s.startswith("gen-") for s in full.scenes) >= 3
     with pytest.raises(ValueError, match="unknown scene"):
         ProtocolSpec(("nowhere",), (0, 1, 2))

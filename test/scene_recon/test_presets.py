@@ -46,6 +46,7 @@ def test_fast_really_does_less_work_than_accurate():
     ma = load_config(MapperConfig, CONFIG_DIR / "mapper.yaml", acc.section("mapper"))
     assert mf.downsample > ma.downsample
     assert mf.keyframes.enabled and not ma.keyframes.enabled
+    assert not mf.fine_surface.enabled and ma.fine_surface.enabled  # the 5 mm grid of small things
     df = load_config(DataInputConfig, CONFIG_DIR / "data.yaml", fast.section("data"))
     assert df.stride > 1
     cf = build_config(CadReplacementConfig, {}, fast.section("cad"))
