@@ -168,7 +168,11 @@ def one_run(bag: str, out: Path, rate: float, live_order: bool, drain_timeout_s:
                 played_at = time.monotonic()
             if played_at is not None:
                 fresh = monitor.snapshot().status_at > played_at + 0.6  # a status sent after the last frame
-                if fresh and status.get("queue", 1) == 0 and status.get("pending_segmentations", 1) == 0:
+                # the frame taken off the queue is counted once integrated (or skipped): an empty queue alone
+                # read one frame short while the last one was still being integrated
+                accounted = sum(int(counters.get(k, 0)) for k in ("integrated", "dropped_backlog", *SKIPPED))
+                if (fresh and status.get("queue", 1) == 0 and status.get("pending_segmentations", 1) == 0
+                        and accounted >= int(counters.get("received", 0))):
                     drained_at = time.monotonic()
                     break
                 if time.monotonic() - played_at > drain_timeout_s:
