@@ -7,7 +7,8 @@ the CAD fit then chose models 20-70 % off in size. Multi-resolution submap mappe
 panoptic_mapping keeps one resolution per submap, by class) solve this by giving small objects their
 own finer volume; so does this module, in the simplest form that costs little:
 
-* one more labelled voxel-block grid (`LabeledTSDF`) at ``voxel_size_m`` (1 cm);
+* one more labelled voxel-block grid (`LabeledTSDF`) at ``voxel_size_m`` (5 mm by default since 2026-11-29,
+  with `free_space`: at 1 cm books stayed 1.5-2x too thick; docs/STAGE2_MAPPING.md);
 * it integrates, on the frames that carry labels, only the depth pixels of small things (the thing
   classes whose class-table ``max_size_m`` is at most ``max_class_size_m``), their silhouette grown by
   ``dilate_px`` pixels, and those pixels' map labels: cost follows what small things the camera sees,
