@@ -928,8 +928,9 @@ class AlignmentProblem:
             ny /= np.maximum(np.linalg.norm(ny, axis=1, keepdims=True), EPS)
             if self.visible_mask is None:  # fixed for one fit: keeps the residual vector's meaning
                 area = self.geom.sample_area * self.pool_count / max(len(ny), 1) * float(np.prod(s)) ** (2 / 3)
+                # model surface in space no camera observed is unseen, not missing (``alignment_error``)
                 self.visible_mask = visible_samples(
-                    ny, np.ones(len(ny), dtype=bool), prep.bin_area, area, self.cfg.visible_min_coverage,
+                    ny, prep.obs.observed_at(y), prep.bin_area, area, self.cfg.visible_min_coverage,
                     samples_map=y if self.face_reach is not None else None, face_area=prep.face_area,
                     face_reach=self.face_reach or 1,
                 )
@@ -1087,7 +1088,9 @@ class AlignmentError:
     that lie within ``cfg.coverage_distance`` of an observed surfel; ``view_coverage`` the same
     share of every CAD sample a camera along the observation's viewing direction would see (not
     only the sides the observation covers: an oversized model whose front is four times the
-    observed front does not escape it). NaN when no sample counts."""
+    observed front does not escape it), in space a camera observed. ``observed_share``: the share of
+    the samples in view that lie in observed space (1 without an observed-space grid). NaN when no
+    sample counts."""
 
     ae: float
     ae_points: float
@@ -1095,6 +1098,7 @@ class AlignmentError:
     visible_fraction: float
     coverage: float = float("nan")
     view_coverage: float = float("nan")
+    observed_share: float = float("nan")
 
 
 #: Cosine above which an observed surfel's normal is compatible with a CAD sample's normal.
@@ -1189,14 +1193,21 @@ def alignment_error(
         seen = facing & (t_hit >= VIEW_DISTANCE - 5e-3)
         in_view[idx[~seen]] = False
         vis = vis & in_view
+    # Model surface in space no camera observed (an unseen far half, behind the object) is not missing
+    # data: nothing says it is absent. It costs at most ``unknown_surface_m`` each, not its distance
+    # to the observed surface, so of two models that explain the observation alike the one that puts
+    # less surface where nobody looked still wins (``ObjectObservation.observed_space``).
+    observed = prepared.obs.observed_at(samples_map[in_view])
+    known_share = float(np.mean(observed)) if len(observed) else float("nan")
     d_obs = scene.compute_distance(o3c.Tensor(pts.astype(np.float32))).numpy().astype(np.float64)
     d_view = surfel_distance(prepared, samples_map[in_view], normals_map[in_view])
+    d_view = np.where(observed, d_view, np.minimum(d_view, cfg.unknown_surface_m))
     d_mod = d_view[vis[in_view]]
     both = np.concatenate([d_obs, d_mod])
     rms = lambda v: float(np.sqrt(np.mean(v * v))) if len(v) else 0.0  # noqa: E731
     near = lambda v: float(np.mean(v <= cfg.coverage_distance)) if len(v) else float("nan")  # noqa: E731
     return AlignmentError(rms(both), rms(d_obs), rms(d_mod), float(vis.mean()) if len(vis) else 0.0,
-                          near(d_mod), near(d_view))
+                          near(d_mod), near(d_view), known_share)
 
 
 def posed_scene(mesh: trimesh.Trimesh, placement: Placement) -> o3d.t.geometry.RaycastingScene:

@@ -423,6 +423,25 @@ def _open_parts_capped(s_x: NDArray[np.float64], s_y: NDArray[np.float64], rots:
     return out
 
 
+def _open_sides_relaxed(s_x: NDArray[np.float64], s_y: NDArray[np.float64],
+                        room: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Observed box extents along axes with unknown space beyond a face raised towards the model's,
+    per hypothesis (ours; ``room``: (H, 2) metres of unknown space along box x and y, both faces).
+
+    Seen in part, a 1.1 m table measured 0.7 m where its far half was outside every frame, and the
+    size term preferred a model with the proportions of the seen half. Along such an axis the seen
+    extent is only a lower bound: it is compared as the model's extent at the scale of the vertical
+    axis when that is larger and fits in the room, so a model longer than the seen part costs nothing
+    there and a shorter one still does."""
+    if not np.any(room > 0.0):
+        return s_x
+    out = s_x.copy()
+    ratio = s_x[:, 2] / np.maximum(s_y[:, 2], EPS)
+    reach = np.minimum(s_y[:, :2] * ratio[:, None], s_x[:, :2] + room)
+    out[:, :2] = np.maximum(s_x[:, :2], reach)
+    return out
+
+
 def match_candidates(
     obs: ObjectObservation,
     candidates: Sequence[tuple[CadEntry, ModelFeatures]],
@@ -467,6 +486,7 @@ def match_candidates(
     s_x_norm = s_x_norms[frame_idx]
     if not paper:
         s_x = _open_parts_capped(s_x, s_y, rots, [candidates[i][0].class_name for i in model_idx])
+        s_x = _open_sides_relaxed(s_x, s_y, np.stack([obs.room(f).sum(axis=1) for f in frames])[frame_idx])
         s_x_norm = np.maximum(np.linalg.norm(s_x, axis=1), EPS)
     diff = s_x / s_x_norm[:, None] - s_y / s_y_norm[:, None]
     # Eq. (8): ours takes the Euclidean norm; the paper's implementation an L1 difference.

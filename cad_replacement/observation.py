@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from recon_core.errors import InputError
 from recon_core.geometry.box import GravityBox
 from recon_core.geometry.box_fit import fit_gravity_box
+from recon_core.geometry.observed_space import ObservedSpace
 from recon_core.geometry.plane import Plane
 from recon_core.geometry.plane_fit import sample_mesh
 
@@ -61,7 +62,11 @@ class ObjectObservation:
     (they sharpen the plane features and tell alignment which sides of the object were seen);
     ``box``: its gravity-aligned box (computed from the points when omitted); ``support_z``: top
     of the supporting plane (the model's bottom is put there, Eq. 11's constraint) or ``None``;
-    ``front_hint``: unit xy direction towards open space/the camera, ``None`` when unknown.
+    ``front_hint``: unit xy direction towards open space/the camera, ``None`` when unknown;
+    ``observed_space``: the space around the entity the cameras observed (``None``: not known), so
+    model surface in unknown space is unseen rather than missing, and the box may grow into it;
+    ``walls``: the room's wall planes, through which it may not grow (the space behind a cabinet
+    against a wall is unknown, and so is the space behind the wall).
     """
 
     entity_id: int
@@ -73,6 +78,8 @@ class ObjectObservation:
     support_z: float | None = None
     front_hint: NDArray[np.float64] | None = None
     mesh: trimesh.Trimesh | None = field(default=None, repr=False)
+    observed_space: ObservedSpace | None = field(default=None, repr=False)
+    walls: tuple[Plane, ...] = field(default=(), repr=False)
 
     def __post_init__(self) -> None:
         pts = np.array(self.points, dtype=np.float64)
@@ -111,6 +118,37 @@ class ObjectObservation:
         assert self.box is not None
         return self.box
 
+    def observed_at(self, points: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Per map point: could a camera have seen it (``True``), or does it lie in space no view
+        observed (``False``: behind the surface, outside every frustum)? Everywhere ``True`` without
+        an ``observed_space``."""
+        if self.observed_space is None:
+            return np.ones(len(points), dtype=bool)
+        return self.observed_space.observed_at(points)
+
+    def room(self, box: GravityBox) -> NDArray[np.float64]:
+        """(2, 2) metres of unknown space beyond the box's -x/+x, -y/+y faces (``ObservedSpace.room``),
+        up to the nearest wall ahead of each face; none without an ``observed_space``."""
+        if self.observed_space is None:
+            return np.zeros((2, 2))
+        room = self.observed_space.room(box)
+        if not self.walls:
+            return room
+        rot = np.array([[np.cos(box.yaw), -np.sin(box.yaw)], [np.sin(box.yaw), np.cos(box.yaw)]])
+        center = np.asarray(box.center, dtype=np.float64)
+        for k in (0, 1):
+            for e, sign in enumerate((-1.0, 1.0)):
+                ahead = np.r_[sign * rot[:, k], 0.0]
+                face = center + 0.5 * float(box.size[k]) * ahead
+                for wall in self.walls:
+                    along = float(wall.normal @ ahead)
+                    if abs(along) < WALL_MIN_COS:
+                        continue
+                    t = -(float(wall.normal @ face) + wall.d) / along
+                    if t > -WALL_BEHIND_M:
+                        room[k, e] = min(room[k, e], max(t, 0.0))
+        return room
+
     @property
     def bottom_z(self) -> float:
         """Where the model's bottom goes: the support plane when known, else the lowest point."""
@@ -133,6 +171,41 @@ class ObjectObservation:
             raise ObservationError(f"{name!r}: mesh is empty")
         pts, nrm = sample_mesh(mesh, samples, seed)
         return cls(entity_id, name, class_name, pts, normals=nrm, mesh=mesh, **kwargs)  # type: ignore[arg-type]
+
+
+def grown_into_unknown(box: GravityBox, room: NDArray[np.float64], target: NDArray[np.float64]) -> GravityBox:
+    """The box grown along its x/y axes towards ``target`` (box-frame sizes) into the unknown space
+    beyond its faces (``room``, as ``ObservedSpace.room``).
+
+    An observed extent with unknown space beyond it is a lower bound: a start that keeps it makes the
+    fit shrink a half-seen table to its seen half. Along each axis the growth is split evenly between
+    the two faces, each taking at most its room and the other face the rest of what it has room for,
+    so the seen end of a half-seen object stays where it was seen."""
+    size = np.asarray(box.size, dtype=np.float64).copy()
+    shift = np.zeros(2)
+    for k in (0, 1):
+        grow = float(target[k]) - size[k]
+        lo_room, hi_room = max(float(room[k, 0]), 0.0), max(float(room[k, 1]), 0.0)
+        if not np.isfinite(grow) or grow <= 0.0 or lo_room + hi_room <= 0.0:
+            continue
+        grow = min(grow, lo_room + hi_room)
+        lo = min(0.5 * grow, lo_room)
+        hi = min(grow - lo, hi_room)
+        lo = grow - hi
+        size[k] += grow
+        shift[k] = 0.5 * (hi - lo)
+    if not np.any(size[:2] != box.size[:2]):
+        return box
+    c, s = np.cos(box.yaw), np.sin(box.yaw)
+    center = np.asarray(box.center, dtype=np.float64).copy()
+    center[:2] += np.array([[c, -s], [s, c]]) @ shift
+    return GravityBox(center, size, box.yaw)
+
+
+#: ``room``: a wall counts when a face's normal meets it at least this steeply (cosine) ...
+WALL_MIN_COS = 0.5
+#: ... and lies ahead of the face, or at most this far (m) behind it (an object seen into the wall).
+WALL_BEHIND_M = 0.05
 
 
 #: Height band (m) above the supporting plane in which up-facing points count as the support's surface.

@@ -26,6 +26,14 @@ class CadReplacementConfig:
     #: Ours: extra box frames aligned with the largest vertical observed planes (robust to a box
     #: tilted by an open door); the paper uses the observed box only.
     extra_frames: int = 2
+    #: Ours: read the map's grid of observed and unknown space around an entity where it carries one
+    #: (``Entity.observed_space``; the mapper's ``free_space.observed_grid``, off by default; issue 22
+    #: item 4): model surface in unknown space is not missing data, and a box side facing unknown
+    #: space may grow towards the model's own proportions (a half-seen table is not its seen half).
+    observed_space: bool = True
+    #: Ours, with an observed-space grid: the most (m) a CAD sample in unknown space adds to the
+    #: CAD -> observation half of the AE (its distance to the observed surface, capped).
+    unknown_surface_m: float = 0.01
     #: Oriented candidates kept after matching. REFERENCE.md: the paper's code keeps k = 20 (the
     #: IJCV text says 10).
     top_k: int = 20
@@ -204,6 +212,8 @@ class CadReplacementConfig:
             raise ValueError("need layout_outlier_m > 0, 0 <= layout_outlier_share <= 1 and layout_fits >= 0")
         if self.coverage_distance <= 0.0:
             raise ValueError("coverage_distance must be positive")
+        if not self.unknown_surface_m >= 0.0:
+            raise ValueError("unknown_surface_m must be >= 0")
         if not 0.0 < self.accept_ae_min <= self.accept_ae_max or self.accept_ae_rel < 0.0:
             raise ValueError("need 0 < accept_ae_min <= accept_ae_max and accept_ae_rel >= 0")
         if not 0.0 <= self.accept_min_coverage <= 1.0:

@@ -40,6 +40,7 @@ from cad_replacement.cad.layouts import layout_variants, resized_variants
 from cad_replacement.cad.library import CadEntry
 from cad_replacement.cad.model import CadModel
 from recon_core.classes import ClassTable, UnknownClassError
+from recon_core.geometry.box import GravityBox
 
 from .alignment import (
     AlignmentError,
@@ -55,7 +56,7 @@ from .alignment import (
 from .articulation import ArticulationResult, estimate_joint_values
 from .geometry_cache import GeometryCache, library_store
 from .matching import MatchCandidate, candidate_classes, default_class_table, match_candidates, observed_planes
-from .observation import ObjectObservation, handle_side
+from .observation import ObjectObservation, grown_into_unknown, handle_side
 from .replace_config import CadReplacementConfig
 
 EPS = 1e-12
@@ -404,6 +405,19 @@ def _align_ours(
     def round_weight(m: MatchCandidate) -> float:
         return cfg.round_weight if m.entry.class_name in round_classes else 0.0
 
+    rooms: dict[int, NDArray[np.float64]] = {}
+
+    def grown_frame(m: MatchCandidate, geom: ModelGeometry) -> GravityBox:
+        """The candidate's box frame grown into unknown space towards the model's proportions
+        (``grown_into_unknown``): the start of a half-seen object is not its seen half."""
+        room = rooms.get(id(m.frame))
+        if room is None:
+            room = rooms[id(m.frame)] = obs.room(m.frame)
+        if not np.any(room > 0.0):
+            return m.frame
+        along = np.abs(m.box_rotation) @ np.asarray(geom.size, dtype=np.float64)  # model extents on the box axes
+        return grown_into_unknown(m.frame, room, along * (height / max(float(along[2]), 1e-9)))
+
     # Coarse stage 1: every top-k candidate (all yaws of all models) is scored at its box start.
     t = time.perf_counter()
     starts: list[_Start] = []
@@ -418,7 +432,7 @@ def _align_ours(
             model_samples=max(60, cfg.screen_points), envelope=True, face_reach=cfg.fit_face_reach,
             round_weight=round_weight(m),
         )
-        x0 = prob.start(*box_start(m.frame, geom, m.box_rotation, bottom))
+        x0 = prob.start(*box_start(grown_frame(m, geom), geom, m.box_rotation, bottom))
         starts.append((prob.score(x0) * _selection_factor(m, cfg), m, prob, x0))
     starts.sort(key=lambda it: it[0])
     starts = _front_cue_fitted(starts, cfg.screen_fits)

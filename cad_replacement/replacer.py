@@ -286,6 +286,12 @@ class CadReplacer:
             workers = ReplaceWorkers(library, n_workers) if n_workers > 1 else None
         self._workers = workers
 
+    @property
+    def _reads_observed_space(self) -> bool:
+        """Ours reads the map's observed/unknown grid where an entity carries one; the paper's method
+        (and ``observed_space: false``) does not."""
+        return self.config.observed_space and self.config.method != "paper"
+
     def _max_size(self, class_name: str) -> float | None:
         """The class table's largest extent of a class (None: unknown class or not given)."""
         try:
@@ -327,7 +333,9 @@ class CadReplacer:
             bottom = min(refit.z_min, support_z) if support_z is not None else refit.z_min
             box = refit.with_z_range(bottom, refit.z_max)
         return ObjectObservation(node.id, node.name, node.class_name, points, box=box, normals=normals,
-                                 support_z=support_z, front_hint=front, mesh=mesh)
+                                 support_z=support_z, front_hint=front, mesh=mesh,
+                                 observed_space=entity.observed_space if self._reads_observed_space else None,
+                                 walls=tuple(walls))
 
     def _node_job(self, node: GraphNode, entity: Entity, graph: ContactGraph, walls: list[Plane],
                   obstacles: list[GravityBox]) -> _Cached | _Job:
@@ -704,4 +712,8 @@ def _observation_digest(obs: ObjectObservation | None) -> str:
     extra = (None if box is None else (*box.center, *box.size, box.yaw), obs.support_z,
              None if obs.front_hint is None else tuple(np.asarray(obs.front_hint, float)))
     h.update(repr(extra).encode())
+    if obs.observed_space is not None:
+        space = obs.observed_space
+        h.update(repr((*space.origin, space.cell, space.shape)).encode())
+        h.update(space.packed().tobytes())
     return h.hexdigest()

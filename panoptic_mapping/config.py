@@ -285,6 +285,19 @@ class FreeSpaceConfig(Settings):
     #: Only thing classes whose class-table `max_size_m` is at most this (0: every thing class). The
     #: truncation band's shadow is a few centimetres: twice a book's thickness, a few per cent of a cabinet's.
     max_class_size_m: float = setting(0.0, min=0.0, doc="only thing classes up to this size (m; 0: all)")
+    #: Each thing entity carries the grid of the space around it that the views observed
+    #: (`recon_core.geometry.observed_space`): stage 4 does not count model surface in unknown space as
+    #: missing and lets an observed box grow into it (an unseen far half is unknown, not absent). Off by
+    #: default: over the robustness protocol it placed more CAD models and more of them right, but a
+    #: smaller share of the placed ones (docs/STAGE4_CAD.md, "Observed and unknown space").
+    observed_grid: bool = setting(False, doc="attach the observed/unknown grid around each thing entity")
+    #: The grid reaches this share of the entity's largest extent beyond its box on every side ...
+    observed_grid_margin: float = setting(0.6, min=0.0, doc="grid margin, as a share of the entity's largest extent")
+    #: ... at least `observed_grid_min_margin_m` and at most `observed_grid_max_margin_m`.
+    observed_grid_min_margin_m: float = setting(0.1, min=0.0, doc="smallest grid margin (m)")
+    observed_grid_max_margin_m: float = setting(1.0, min=0.0, doc="largest grid margin (m)")
+    #: Cells along the grid's longest side (cubic cells: 2.4 m -> 10 cm, a cup's 0.3 m -> 12 mm).
+    observed_grid_cells: int = setting(24, min=2, doc="cells along the observed grid's longest side")
 
 
 @dataclass

@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from panoptic_mapping.config import FreeSpaceConfig
+from recon_core.geometry.observed_space import ObservedSpace
 
 #: Stored depth is integer millimetres (0: no reading), as sensors deliver it: a quarter of float32's bytes.
 _MM = 1000.0
@@ -135,6 +136,45 @@ class FreeSpaceViews:
             seen[idx[hit]] += 1
             through[idx[(near > 0) & (near > zi + tol)]] += 1
         return SeenThrough(seen, through)
+
+    def observed(self, points: np.ndarray, tolerance: float, min_views: int = 1) -> np.ndarray:
+        """Per map point: did at least ``min_views`` stored views observe it, i.e. hold it in their image
+        with a reading at least as far as the point (less ``tolerance``, m)? A point behind every
+        reading, outside every image or only where the sensor returned nothing is unknown
+        (``recon_core.geometry.observed_space``)."""
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        need = max(1, int(min_views))
+        views = np.zeros(len(pts), np.int32)
+        for depth_mm, k, pose in zip(self.depth_mm, self.intrinsics, self.poses, strict=True):
+            todo = np.flatnonzero(views < need)
+            if todo.size == 0:
+                break
+            rot, t = pose[:3, :3], pose[:3, 3]
+            cam = (pts[todo] - t) @ rot
+            z = cam[:, 2]
+            front = z > 1e-6
+            zs = np.where(front, z, 1.0)
+            u = np.rint(k[0, 0] * cam[:, 0] / zs + k[0, 2]).astype(np.int64)
+            v = np.rint(k[1, 1] * cam[:, 1] / zs + k[1, 2]).astype(np.int64)
+            h, w = depth_mm.shape
+            inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            idx = np.flatnonzero(inside)
+            d = depth_mm[v[idx], u[idx]].astype(np.float64) / _MM
+            reached = (d > 0) & (d >= z[idx] - tolerance)
+            views[todo[idx[reached]]] += 1
+        return views >= need
+
+    def observed_space(self, lower: np.ndarray, upper: np.ndarray, max_cells: int) -> ObservedSpace | None:
+        """The observed/unknown grid over the box ``lower``..``upper`` (None: no views stored). A cell
+        counts as observed when as many views observed its centre as a thing's surface needs to stay
+        core (``min_seen``): a strip one view glimpsed at the edge of its frame is as unknown as the
+        surface there, which the core leaves out."""
+        if not self.depth_mm:
+            return None
+        origin, cell, shape = ObservedSpace.cell_centres(lower, upper, max_cells)
+        grid = ObservedSpace(origin, cell, np.zeros(shape, bool))
+        seen = self.observed(grid.centres(), 0.5 * cell, max(1, int(self.cfg.min_seen)))
+        return ObservedSpace(origin, cell, seen.reshape(shape))
 
     def carved(self, points: np.ndarray) -> np.ndarray:
         """Boolean per point: measured by too few views or looked through (`SeenThrough.carved`, the config)."""

@@ -588,9 +588,36 @@ class PanopticMapper:
                                         np.array(fragment_class, np.int64))
         min_v = self.config.extraction.min_entity_voxels
         out = [e for e in ents if not with_meshes or (len(e.vertices) >= min_v and not self._overruled(e, areas))]
+        if with_meshes:
+            self._attach_observed_space(out)
         if unknown is not None and len(unknown.faces):
             out.append(unknown)
         return out
+
+    def _attach_observed_space(self, ents: list[Entity]) -> None:
+        """Each thing entity's grid of observed and unknown space around it (`free_space.observed_grid`):
+        over its core's box grown by `observed_grid_margin` of its largest extent (within the configured
+        bounds) on every side, from the stored label-frame views. A cell holding another entity's
+        surface counts as observed too: the space is taken, whether a view saw it or not."""
+        cfg = self.config.free_space
+        if self.free_space is None or not cfg.enabled or not cfg.observed_grid or not len(self.free_space):
+            return
+        owners = [e for e in ents if not e.is_empty]
+        surface = np.concatenate([e.vertices for e in owners]) if owners else np.zeros((0, 3))
+        owner = np.repeat(np.array([e.id for e in owners], np.int64), [len(e.vertices) for e in owners])
+        for e in ents:
+            if not e.is_thing or e.is_empty:
+                continue
+            v = e.core_mesh()[0]
+            lo, hi = v.min(axis=0), v.max(axis=0)
+            margin = float(np.clip(cfg.observed_grid_margin * float((hi - lo).max()),
+                                   cfg.observed_grid_min_margin_m, max(cfg.observed_grid_max_margin_m,
+                                                                       cfg.observed_grid_min_margin_m)))
+            margin = max(margin, 1e-3)
+            space = self.free_space.observed_space(lo - margin, hi + margin, cfg.observed_grid_cells)
+            if space is not None:
+                space = space.with_surface(surface[owner != e.id])
+            e.observed_space = space
 
     def _overruled(self, e: Entity, areas: dict[int, float]) -> bool:
         """A thing entity that owns less of the map than `extraction.min_observed_share` of the surface one

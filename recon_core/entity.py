@@ -11,7 +11,8 @@ On disk (a "mapped scene" folder, written by ``scene-recon map``, read by ``eval
     entities.json   {"format_version": 1, "map_frame": "map", "name": "<scene>", "entities": [
                         {"id", "name", "class_id", "class_name", "instance_id", "is_thing", "category",
                          "confidence", "num_voxels", "revision", "core_vertices",
-                         "mesh_file": "meshes/<id>.ply"}, ...]}
+                         "mesh_file": "meshes/<id>.ply",
+                         "observed_space": {"origin", "cell", "shape", "bits"} (optional)}, ...]}
     meshes/<id>.ply the entity's triangle mesh in the map frame
 """
 
@@ -27,6 +28,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from recon_core.errors import EntityError, InputError
+from recon_core.geometry.observed_space import ObservedSpace
 from recon_core.geometry.transforms import as_mesh
 from recon_core.io import write_text_atomic
 
@@ -65,6 +67,9 @@ class Entity:
     revision: int = 0
     num_voxels: int = 0
     core_vertices: int = -1
+    #: Space around the entity the cameras observed (``ObservedSpace``); None: not known (a map without
+    #: stored views, ground truth, an older file). Stage 4 treats model surface in unknown space as unseen.
+    observed_space: ObservedSpace | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.id = int(self.id)
@@ -131,6 +136,7 @@ class Entity:
             "category": self.category or "rigid", "confidence": float(self.confidence),
             "num_voxels": int(self.num_voxels), "revision": int(self.revision),
             "mesh_file": f"meshes/{self.id}.ply", "name": self.name, "core_vertices": int(self.core_vertices),
+            **({"observed_space": self.observed_space.to_dict()} if self.observed_space is not None else {}),
         }
 
 
@@ -180,7 +186,9 @@ def load_entities(folder: str | Path) -> list[Entity]:
                               instance_id=d["instance_id"], category=d.get("category", "rigid"),
                               is_thing=d["is_thing"], confidence=d.get("confidence", 1.0),
                               revision=d.get("revision", 0), num_voxels=d.get("num_voxels", 0),
-                              core_vertices=int(d.get("core_vertices", -1))))
+                              core_vertices=int(d.get("core_vertices", -1)),
+                              observed_space=ObservedSpace.from_dict(d["observed_space"])
+                              if d.get("observed_space") is not None else None))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"{f}: entity {d.get('id') if isinstance(d, dict) else d!r}: {exc}") from exc
     return out

@@ -13,8 +13,9 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from recon_core.entity import Entity
-from recon_core.errors import EntityError, PathConfinementError
+from recon_core.errors import EntityError, InputError, PathConfinementError
 from recon_core.geometry.box_fit import fit_gravity_box
+from recon_core.geometry.observed_space import ObservedSpace
 from recon_core.paths import confined_uri
 
 CATEGORY = {"layout": PanopticEntity.CATEGORY_LAYOUT, "rigid": PanopticEntity.CATEGORY_RIGID,
@@ -74,7 +75,26 @@ def entity_to_msg(e: Entity, include_mesh: bool = True, mesh_uri: str = "") -> P
     msg.box = box_msg(e.vertices)
     if include_mesh and len(e.faces):
         msg.mesh = mesh_msg(e.vertices, e.faces)
+    if e.observed_space is not None:
+        space = e.observed_space
+        msg.observed_origin = [float(v) for v in space.origin]
+        msg.observed_cell = float(space.cell)
+        msg.observed_shape = list(space.shape)
+        msg.observed_bits = space.packed().tobytes()
     return msg
+
+
+def observed_space_from_msg(msg: PanopticEntity) -> ObservedSpace | None:
+    """The entity's observed-space grid (None when the message carries none); a malformed one is an
+    EntityError."""
+    if not len(msg.observed_shape):
+        return None
+    try:
+        return ObservedSpace.from_packed(list(msg.observed_origin), float(msg.observed_cell),
+                                         tuple(int(n) for n in msg.observed_shape),
+                                         np.frombuffer(bytes(msg.observed_bits), np.uint8))
+    except InputError as exc:
+        raise EntityError(f"entity {msg.id}: {exc}") from exc
 
 
 #: The mapper node's default output root (`data_root`); consumers read meshes by URI only under their
@@ -142,7 +162,8 @@ def msg_to_entity(msg: PanopticEntity, mesh_root: str | Path | None = None) -> E
                   instance_id=int(msg.instance_id), is_thing=bool(msg.is_thing),
                   category=CATEGORY_NAME.get(msg.category, ""), confidence=float(msg.confidence),
                   revision=int(msg.revision), num_voxels=len(v),
-                  core_vertices=len(v) - int(msg.fringe_vertices) if 0 < msg.fringe_vertices <= len(v) else -1)
+                  core_vertices=len(v) - int(msg.fringe_vertices) if 0 < msg.fringe_vertices <= len(v) else -1,
+                  observed_space=observed_space_from_msg(msg))
 
 
 def entity_color(entity_id: int) -> ColorRGBA:

@@ -188,3 +188,40 @@ def test_with_the_fine_surface_the_books_core_is_its_true_thickness(book_map):
     assert lo >= 1.49 and hi <= BOOK_BACK_X + 0.008, (lo, hi)
     _, coarse_core = _book(book_map, enabled=True, min_seen=2)
     assert np.percentile(coarse_core[:, 0], 99) > BOOK_BACK_X + 0.015  # the 2 cm grid alone: centimetres behind
+
+
+def test_observed_is_what_views_looked_at_up_to_their_readings():
+    views = _views(FreeSpaceConfig(enabled=True, min_seen=2))
+    views.add(_wall_with_plate(), K, np.eye(4))
+    pts = np.array([[0.25, 0.0, 1.5], [0.5, 0.0, 2.0],  # in front of the wall, on it: observed
+                    [0.75, 0.0, 2.5], [-0.75, 0.0, 1.5],  # behind the wall, behind the plate: unknown
+                    [50.0, 0.0, 2.0], [0.0, 0.0, -1.0]])  # outside the image, behind the camera: unknown
+    assert views.observed(pts, 0.01).tolist() == [True, True, False, False, False, False]
+    assert not views.observed(pts, 0.01, min_views=2).any()  # one view is not two
+    views.add(_wall_with_plate(), K, np.eye(4))
+    assert views.observed(pts, 0.01, min_views=2).tolist() == [True, True, False, False, False, False]
+    # the grid counts a cell as observed when min_seen views did
+    grid = views.observed_space(np.array([0.2, -0.1, 1.4]), np.array([0.8, 0.1, 2.6]), 12)
+    assert grid is not None and grid.observed_at(np.array([[0.3, 0.0, 1.5]]))[0]
+    assert not grid.observed_at(np.array([[0.3, 0.0, 2.4]]))[0]  # behind the wall
+    assert _views().observed_space(np.zeros(3), np.ones(3), 4) is None  # no views: no grid
+
+
+def test_the_observed_grid_is_attached_to_things_only_when_asked(book_map):
+    book_map.config.free_space.observed_grid = True
+    book_map._entity_cache = None
+    try:
+        ents = book_map.entities()
+        book = next(e for e in ents if e.class_name == "book")
+        assert all(e.observed_space is None for e in ents if not e.is_thing)
+        space = book.observed_space
+        assert space is not None and max(space.shape) == book_map.config.free_space.observed_grid_cells
+        # in front of the book (where the cameras stood) observed; the space behind it, hidden, unknown;
+        # the table the book stands on is another entity's surface: taken, so observed
+        assert space.observed_at(np.array([[1.42, 0.0, 0.85]]))[0]
+        assert not space.observed_at(np.array([[BOOK_BACK_X + 0.06, 0.0, 0.85]]))[0]
+        assert space.observed_at(np.array([[1.7, 0.0, 0.69]]))[0]
+    finally:
+        book_map.config.free_space.observed_grid = False
+        book_map._entity_cache = None
+    assert all(e.observed_space is None for e in book_map.entities())
