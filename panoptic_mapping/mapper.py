@@ -605,6 +605,8 @@ class PanopticMapper:
         owners = [e for e in ents if not e.is_empty]
         surface = np.concatenate([e.vertices for e in owners]) if owners else np.zeros((0, 3))
         owner = np.repeat(np.array([e.id for e in owners], np.int64), [len(e.vertices) for e in owners])
+        by_x = np.argsort(surface[:, 0], kind="stable")  # each grid reads the slab of x it spans
+        surface, owner = surface[by_x], owner[by_x]
         for e in ents:
             if not e.is_thing or e.is_empty:
                 continue
@@ -616,7 +618,8 @@ class PanopticMapper:
             margin = max(margin, 1e-3)
             space = self.free_space.observed_space(lo - margin, hi + margin, cfg.observed_grid_cells)
             if space is not None:
-                space = space.with_surface(surface[owner != e.id])
+                a, b = np.searchsorted(surface[:, 0], [space.origin[0], space.upper[0]])
+                space = space.with_surface(surface[a:b][owner[a:b] != e.id])
             e.observed_space = space
 
     def _overruled(self, e: Entity, areas: dict[int, float]) -> bool:
