@@ -57,6 +57,22 @@ def _to_mm(depth_m: np.ndarray) -> np.ndarray:
     return np.where(ok, np.clip(np.round(np.where(ok, depth_m, 0) * _MM), 0, 65535), 0).astype(np.uint16)
 
 
+def _in_image(pts: np.ndarray, k: np.ndarray, pose: np.ndarray,
+              shape: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Which map points a view holds in its (stored) image: their indices, pixel columns and rows, and
+    depths along the optical axis (camera-to-map `pose`, intrinsics `k` of the stored image)."""
+    rot, t = pose[:3, :3], pose[:3, 3]
+    cam = (pts - t) @ rot  # map -> camera: R^T (p - t)
+    z = cam[:, 2]
+    front = z > 1e-6
+    zs = np.where(front, z, 1.0)
+    u = np.rint(k[0, 0] * cam[:, 0] / zs + k[0, 2]).astype(np.int64)
+    v = np.rint(k[1, 1] * cam[:, 1] / zs + k[1, 2]).astype(np.int64)
+    h, w = shape[0], shape[1]
+    idx = np.flatnonzero(front & (u >= 0) & (u < w) & (v >= 0) & (v < h))
+    return idx, u[idx], v[idx], z[idx]
+
+
 class FreeSpaceViews:
     """The stored label-frame views (module doc) and the looked-through test of surface vertices."""
 
@@ -113,21 +129,11 @@ class FreeSpaceViews:
         base_tol = float(self.cfg.tolerance_voxels) * self.voxel_size_m
         rel_tol = float(self.cfg.tolerance_per_m)
         for depth_mm, near_mm, k, pose in zip(self.depth_mm, self.near_mm, self.intrinsics, self.poses, strict=True):
-            rot, t = pose[:3, :3], pose[:3, 3]
-            cam = (pts - t) @ rot  # map -> camera: R^T (p - t)
-            z = cam[:, 2]
-            front = z > 1e-6
-            zs = np.where(front, z, 1.0)
-            u = np.rint(k[0, 0] * cam[:, 0] / zs + k[0, 2]).astype(np.int64)
-            v = np.rint(k[1, 1] * cam[:, 1] / zs + k[1, 2]).astype(np.int64)
-            h, w = depth_mm.shape
-            inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-            idx = np.flatnonzero(inside)
+            idx, u, v, zi = _in_image(pts, k, pose, depth_mm.shape)
             if idx.size == 0:
                 continue
-            d = depth_mm[v[idx], u[idx]].astype(np.float64) / _MM
-            near = near_mm[v[idx], u[idx]].astype(np.float64) / _MM
-            zi = z[idx]
+            d = depth_mm[v, u].astype(np.float64) / _MM
+            near = near_mm[v, u].astype(np.float64) / _MM
             tol = base_tol + rel_tol * zi
             # seen: the pixel's own reading or the nearest of its neighbourhood is where the point is (a
             # slanted surface's neighbourhood holds nearer readings); looked through: even the nearest
@@ -149,18 +155,9 @@ class FreeSpaceViews:
             todo = np.flatnonzero(views < need)
             if todo.size == 0:
                 break
-            rot, t = pose[:3, :3], pose[:3, 3]
-            cam = (pts[todo] - t) @ rot
-            z = cam[:, 2]
-            front = z > 1e-6
-            zs = np.where(front, z, 1.0)
-            u = np.rint(k[0, 0] * cam[:, 0] / zs + k[0, 2]).astype(np.int64)
-            v = np.rint(k[1, 1] * cam[:, 1] / zs + k[1, 2]).astype(np.int64)
-            h, w = depth_mm.shape
-            inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-            idx = np.flatnonzero(inside)
-            d = depth_mm[v[idx], u[idx]].astype(np.float64) / _MM
-            reached = (d > 0) & (d >= z[idx] - tolerance)
+            idx, u, v, z = _in_image(pts[todo], k, pose, depth_mm.shape)
+            d = depth_mm[v, u].astype(np.float64) / _MM
+            reached = (d > 0) & (d >= z - tolerance)
             views[todo[idx[reached]]] += 1
         return views >= need
 
