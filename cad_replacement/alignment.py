@@ -1088,9 +1088,10 @@ class AlignmentError:
     that lie within ``cfg.coverage_distance`` of an observed surfel; ``view_coverage`` the same
     share of every CAD sample a camera along the observation's viewing direction would see (not
     only the sides the observation covers: an oversized model whose front is four times the
-    observed front does not escape it), in space a camera observed. ``observed_share``: the share of
-    the samples in view that lie in observed space (1 without an observed-space grid). NaN when no
-    sample counts."""
+    observed front does not escape it). With an observed-space grid a sample in unknown space counts
+    at a distance of at most ``cfg.unknown_surface_m`` (covered, at the default 1 cm);
+    ``observed_share`` is the share of the samples in view that lie in observed space (1 without a
+    grid). NaN when no sample counts."""
 
     ae: float
     ae_points: float

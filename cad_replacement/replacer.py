@@ -712,8 +712,9 @@ def _observation_digest(obs: ObjectObservation | None) -> str:
     extra = (None if box is None else (*box.center, *box.size, box.yaw), obs.support_z,
              None if obs.front_hint is None else tuple(np.asarray(obs.front_hint, float)))
     h.update(repr(extra).encode())
-    if obs.observed_space is not None:
+    if obs.observed_space is not None:  # the grid, and the walls that bound its room
         space = obs.observed_space
         h.update(repr((*space.origin, space.cell, space.shape)).encode())
         h.update(space.packed().tobytes())
+        h.update(repr([(*w.normal, w.d) for w in obs.walls]).encode())
     return h.hexdigest()

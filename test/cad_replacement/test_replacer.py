@@ -307,3 +307,27 @@ def test_a_half_seen_table_is_fitted_under_what_stands_on_it(monkeypatch):
     # the top reaches past the microwave's centre (it stands); measured 0.27 against 0.10 without the rule
     assert covered["footprint"] > 0.2 + 0.05, covered
     assert covered["none"] < 0.2, covered
+
+
+def test_an_observed_grid_reaches_ours_and_rematches_only_its_object(replaced):
+    """An entity's observed-space grid (``free_space.observed_grid``) is part of what stage 4 caches on:
+    a node whose grid changed is matched again, the others are reused; the paper's method ignores it."""
+    from cad_replacement.replace_config import CadReplacementConfig
+    from recon_core.geometry.observed_space import ObservedSpace
+
+    _scene, graph, nodes, replacer, _result = replaced
+    replacer.replace(graph, nodes)
+    target = next(r for r in replacer.replace(graph, nodes).records if r.kind == "cad")
+    entity = nodes[target.node_id]
+    origin, cell, shape = ObservedSpace.cell_centres(entity.vertices.min(0) - 0.2, entity.vertices.max(0) + 0.2, 8)
+    gridded = dict(nodes)
+    seen_all = ObservedSpace(origin, cell, np.ones(shape, bool))
+    gridded[target.node_id] = dataclasses.replace(entity, observed_space=seen_all)
+    again = replacer.replace(graph, gridded)
+    assert again.rematched == 1
+    assert [r.name for r in again.records if r.kind == "cad" and not r.reused] == [target.name]
+    node = graph.nodes[target.node_id]
+    ours = replacer._observation(node, gridded[target.node_id], graph, [], [])
+    paper = CadReplacer(replacer.library, CadReplacementConfig(method="paper"))
+    assert ours.observed_space is not None
+    assert paper._observation(node, gridded[target.node_id], graph, [], []).observed_space is None
