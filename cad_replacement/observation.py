@@ -80,6 +80,8 @@ class ObjectObservation:
     mesh: trimesh.Trimesh | None = field(default=None, repr=False)
     observed_space: ObservedSpace | None = field(default=None, repr=False)
     walls: tuple[Plane, ...] = field(default=(), repr=False)
+    #: ``room`` per box (matching and the fit's start ask for the same frames).
+    _rooms: dict[tuple[float, ...], NDArray[np.float64]] = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
         pts = np.array(self.points, dtype=np.float64)
@@ -131,10 +133,18 @@ class ObjectObservation:
         up to the nearest wall ahead of each face; none without an ``observed_space``."""
         if self.observed_space is None:
             return np.zeros((2, 2))
+        key = (*box.center, *box.size, box.yaw)
+        cached = self._rooms.get(key)
+        if cached is None:
+            cached = self._rooms[key] = self._room(box)
+        return cached.copy()
+
+    def _room(self, box: GravityBox) -> NDArray[np.float64]:
+        assert self.observed_space is not None
         room = self.observed_space.room(box)
         if not self.walls:
             return room
-        rot = np.array([[np.cos(box.yaw), -np.sin(box.yaw)], [np.sin(box.yaw), np.cos(box.yaw)]])
+        rot = box.rotation()[:2, :2]
         center = np.asarray(box.center, dtype=np.float64)
         for k in (0, 1):
             for e, sign in enumerate((-1.0, 1.0)):
@@ -196,9 +206,8 @@ def grown_into_unknown(box: GravityBox, room: NDArray[np.float64], target: NDArr
         shift[k] = 0.5 * (hi - lo)
     if not np.any(size[:2] != box.size[:2]):
         return box
-    c, s = np.cos(box.yaw), np.sin(box.yaw)
     center = np.asarray(box.center, dtype=np.float64).copy()
-    center[:2] += np.array([[c, -s], [s, c]]) @ shift
+    center[:2] += box.rotation()[:2, :2] @ shift
     return GravityBox(center, size, box.yaw)
 
 

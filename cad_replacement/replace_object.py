@@ -405,14 +405,10 @@ def _align_ours(
     def round_weight(m: MatchCandidate) -> float:
         return cfg.round_weight if m.entry.class_name in round_classes else 0.0
 
-    rooms: dict[int, NDArray[np.float64]] = {}
-
     def grown_frame(m: MatchCandidate, geom: ModelGeometry) -> GravityBox:
         """The candidate's box frame grown into unknown space towards the model's proportions
         (``grown_into_unknown``): the start of a half-seen object is not its seen half."""
-        room = rooms.get(id(m.frame))
-        if room is None:
-            room = rooms[id(m.frame)] = obs.room(m.frame)
+        room = obs.room(m.frame)
         if not np.any(room > 0.0):
             return m.frame
         along = np.abs(m.box_rotation) @ np.asarray(geom.size, dtype=np.float64)  # model extents on the box axes

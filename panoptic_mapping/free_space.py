@@ -168,10 +168,9 @@ class FreeSpaceViews:
         surface there, which the core leaves out."""
         if not self.depth_mm:
             return None
-        origin, cell, shape = ObservedSpace.cell_centres(lower, upper, max_cells)
-        grid = ObservedSpace(origin, cell, np.zeros(shape, bool))
-        seen = self.observed(grid.centres(), 0.5 * cell, max(1, int(self.cfg.min_seen)))
-        return ObservedSpace(origin, cell, seen.reshape(shape))
+        grid = ObservedSpace.unknown(lower, upper, max_cells)
+        seen = self.observed(grid.centres(), 0.5 * grid.cell, max(1, int(self.cfg.min_seen)))
+        return ObservedSpace(grid.origin, grid.cell, seen.reshape(grid.shape))
 
     def carved(self, points: np.ndarray) -> np.ndarray:
         """Boolean per point: measured by too few views or looked through (`SeenThrough.carved`, the config)."""

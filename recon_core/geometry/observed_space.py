@@ -9,8 +9,9 @@ to leave such model surface out of its "missing data" terms (``cad_replacement.a
 to know on which sides an observed box may grow (``cad_replacement.matching``).
 
 The grid is axis-aligned in the (gravity-aligned) map frame around one entity; a cell is
-``True`` when at least one stored view observed its centre (measured it or looked past it). The
-mapper builds it from its label-frame views (``panoptic_mapping.free_space``); outside the grid
+``True`` when enough stored views observed its centre (measured it or looked past it) or when it
+holds another entity's surface. The mapper builds it from its label-frame views
+(``panoptic_mapping.free_space``, ``FreeSpaceViews.observed_space``); outside the grid
 nothing is known about the views, and ``observed_at`` answers ``True`` there, which is what stage
 4 assumed before the grid existed (every side a camera direction covers counts as seen).
 """
@@ -67,11 +68,10 @@ class ObservedSpace:
         """The corner opposite ``origin``."""
         return self.origin + self.cell * np.asarray(self.shape, dtype=np.float64)
 
-    @staticmethod
-    def cell_centres(lower: ArrayLike, upper: ArrayLike,
-                     max_cells: int = MAX_CELLS_PER_AXIS) -> tuple[NDArray[np.float64], float, tuple[int, int, int]]:
-        """A grid over the box ``lower``..``upper``: its origin, cell size and shape (cubic cells, at most
-        ``max_cells`` along the longest side). The region's extent must be finite and positive."""
+    @classmethod
+    def unknown(cls, lower: ArrayLike, upper: ArrayLike, max_cells: int = MAX_CELLS_PER_AXIS) -> ObservedSpace:
+        """An all-unknown grid over the box ``lower``..``upper`` (cubic cells, at most ``max_cells`` along
+        the longest side), to be filled in. The region's extent must be finite and positive."""
         lo = np.asarray(lower, dtype=np.float64).reshape(3)
         hi = np.asarray(upper, dtype=np.float64).reshape(3)
         extent = hi - lo
@@ -79,7 +79,13 @@ class ObservedSpace:
             raise InputError(f"observed space: region {lo.tolist()}..{hi.tolist()} is empty or not finite")
         cell = float(extent.max()) / max(1, int(max_cells))
         shape = tuple(int(n) for n in np.maximum(np.ceil(extent / cell - 1e-9), 1).astype(np.int64))
-        return lo, cell, (shape[0], shape[1], shape[2])
+        return cls(lo, cell, np.zeros(shape, dtype=bool))
+
+    def _cells(self, points: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+        """Integer cell indices of points (any leading shape, last axis xyz) and whether each lies in the grid."""
+        q = np.floor((points - self.origin) / self.cell)
+        inside = np.all((q >= 0) & (q < np.asarray(self.shape)), axis=-1)
+        return np.where(np.isfinite(q), q, -1).astype(np.int64), inside
 
     def centres(self) -> NDArray[np.float64]:
         """(nx * ny * nz, 3) cell centres in C order (the order of ``observed.ravel()``)."""
@@ -88,13 +94,10 @@ class ObservedSpace:
 
     def observed_at(self, points: ArrayLike) -> NDArray[np.bool_]:
         """Per point: observed (``True``), or unknown (``False``); outside the grid ``True`` (nothing known)."""
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        q = np.floor((p - self.origin) / self.cell)
-        inside = np.all((q >= 0) & (q < np.asarray(self.shape)), axis=1) & np.all(np.isfinite(p), axis=1)
-        out = np.ones(len(p), dtype=bool)
-        if np.any(inside):
-            qi = q[inside].astype(np.int64)
-            out[inside] = self.observed[qi[:, 0], qi[:, 1], qi[:, 2]]
+        q, inside = self._cells(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        out = np.ones(len(q), dtype=bool)
+        qi = q[inside]
+        out[inside] = self.observed[qi[:, 0], qi[:, 1], qi[:, 2]]
         return out
 
     def room(self, box: GravityBox) -> NDArray[np.float64]:
@@ -114,7 +117,7 @@ class ObservedSpace:
         frac = (np.arange(ROOM_LINES) + 0.5) / ROOM_LINES
         across, heights = 0.8 * frac - 0.4, box.z_min + (box.z_max - box.z_min) * (0.1 + 0.9 * frac)
         c_idx, z = (g.ravel() for g in np.meshgrid(across, heights, indexing="ij"))
-        rot = np.array([[np.cos(box.yaw), -np.sin(box.yaw)], [np.sin(box.yaw), np.cos(box.yaw)]])
+        rot = box.rotation()[:2, :2]
         shape = np.asarray(self.shape)
         out = np.zeros((2, 2))
         for k in (0, 1):
@@ -124,8 +127,7 @@ class ObservedSpace:
                 local[..., 1 - k] = (c_idx * 2.0 * half[1 - k])[:, None]
                 xy = local @ rot.T + np.asarray(box.center[:2], dtype=np.float64)
                 pts = np.concatenate([xy, np.broadcast_to(z[:, None, None], (*xy.shape[:2], 1))], axis=2)
-                q = np.floor((pts - self.origin) / self.cell).astype(np.int64)
-                inside = np.all((q >= 0) & (q < shape), axis=2)
+                q, inside = self._cells(pts)
                 qc = np.clip(q, 0, shape - 1)
                 blocked = ~inside | self.observed[qc[..., 0], qc[..., 1], qc[..., 2]]
                 first = np.where(blocked.any(axis=1), blocked.argmax(axis=1), len(steps))
@@ -135,12 +137,10 @@ class ObservedSpace:
     def with_surface(self, points: ArrayLike) -> ObservedSpace:
         """This grid with every cell that holds one of ``points`` (other objects' measured surface)
         marked observed: space something else takes is not room for this object."""
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        q = np.floor((p - self.origin) / self.cell)
-        inside = np.all((q >= 0) & (q < np.asarray(self.shape)), axis=1)
+        q, inside = self._cells(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         if not np.any(inside):
             return self
-        qi = q[inside].astype(np.int64)
+        qi = q[inside]
         grid = self.observed.copy()
         grid[qi[:, 0], qi[:, 1], qi[:, 2]] = True
         return ObservedSpace(self.origin, self.cell, grid)
@@ -153,7 +153,7 @@ class ObservedSpace:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form: the grid bit-packed (C order) as hex, beside origin, cell and shape."""
         return {"origin": self.origin.tolist(), "cell": self.cell, "shape": list(self.shape),
-                "bits": np.packbits(self.observed.ravel()).tobytes().hex()}
+                "bits": self.packed().tobytes().hex()}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> ObservedSpace:

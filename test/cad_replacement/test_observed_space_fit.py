@@ -44,9 +44,8 @@ def _half_seen_table(with_grid: bool) -> tuple[ObjectObservation, np.ndarray]:
     space = None
     if with_grid:
         lo, hi = mesh.bounds[0] - 0.6, mesh.bounds[1] + 0.6
-        origin, cell, shape = ObservedSpace.cell_centres(lo, hi, 40)
-        centres = ObservedSpace(origin, cell, np.zeros(shape, bool)).centres()
-        space = ObservedSpace(origin, cell, (centres[:, 0] < CUT_X).reshape(shape))
+        grid = ObservedSpace.unknown(lo, hi, 40)
+        space = ObservedSpace(grid.origin, grid.cell, (grid.centres()[:, 0] < CUT_X).reshape(grid.shape))
     obs = ObjectObservation(1, "table_1", "table", pts[seen], normals=nrm[seen], support_z=0.0, observed_space=space)
     return obs, np.asarray(mesh.extents)
 
@@ -68,10 +67,10 @@ def test_a_half_seen_table_keeps_its_size_only_where_the_grid_says_its_far_half_
 
 
 def test_room_stops_at_observed_space_and_at_a_wall() -> None:
-    origin, cell, shape = ObservedSpace.cell_centres([-1.0, -1.0, 0.0], [1.0, 1.0, 1.0], 20)
-    centres = ObservedSpace(origin, cell, np.zeros(shape, bool)).centres()
-    unknown = centres[:, 0] > 0.2  # beyond x = 0.2 no camera looked
-    space = ObservedSpace(origin, cell, ~unknown.reshape(shape))
+    grid = ObservedSpace.unknown([-1.0, -1.0, 0.0], [1.0, 1.0, 1.0], 20)
+    cell = grid.cell
+    unknown = grid.centres()[:, 0] > 0.2  # beyond x = 0.2 no camera looked
+    space = ObservedSpace(grid.origin, cell, ~unknown.reshape(grid.shape))
     box = GravityBox(np.array([0.0, 0.0, 0.4]), np.array([0.4, 0.4, 0.8]), 0.0)
     room = space.room(box)
     assert room[0, 1] == pytest.approx(0.8, abs=cell)  # +x: unknown up to the grid's edge at x = 1

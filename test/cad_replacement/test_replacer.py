@@ -319,9 +319,9 @@ def test_an_observed_grid_reaches_ours_and_rematches_only_its_object(replaced):
     replacer.replace(graph, nodes)
     target = next(r for r in replacer.replace(graph, nodes).records if r.kind == "cad")
     entity = nodes[target.node_id]
-    origin, cell, shape = ObservedSpace.cell_centres(entity.vertices.min(0) - 0.2, entity.vertices.max(0) + 0.2, 8)
+    empty = ObservedSpace.unknown(entity.vertices.min(0) - 0.2, entity.vertices.max(0) + 0.2, 8)
     gridded = dict(nodes)
-    seen_all = ObservedSpace(origin, cell, np.ones(shape, bool))
+    seen_all = ObservedSpace(empty.origin, empty.cell, np.ones(empty.shape, bool))
     gridded[target.node_id] = dataclasses.replace(entity, observed_space=seen_all)
     again = replacer.replace(graph, gridded)
     assert again.rematched == 1

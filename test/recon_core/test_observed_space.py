@@ -13,11 +13,11 @@ from recon_core.geometry.observed_space import ObservedSpace
 
 
 def _space() -> ObservedSpace:
-    origin, cell, shape = ObservedSpace.cell_centres([0.0, 0.0, 0.0], [1.0, 0.5, 0.25], 8)
-    assert cell == 0.125 and shape == (8, 4, 2)
-    grid = np.zeros(shape, bool)
+    empty = ObservedSpace.unknown([0.0, 0.0, 0.0], [1.0, 0.5, 0.25], 8)
+    assert empty.cell == 0.125 and empty.shape == (8, 4, 2) and not empty.observed.any()
+    grid = np.zeros(empty.shape, bool)
     grid[:4] = True  # x < 0.5 observed
-    return ObservedSpace(origin, cell, grid)
+    return ObservedSpace(empty.origin, empty.cell, grid)
 
 
 def test_lookups_inside_and_outside_the_grid():
@@ -48,7 +48,7 @@ def test_round_trips_and_malformed_grids():
     with pytest.raises(InputError, match="cell size"):
         ObservedSpace(np.zeros(3), 0.0, np.ones((2, 2, 2), bool))
     with pytest.raises(InputError, match="empty or not finite"):
-        ObservedSpace.cell_centres([0, 0, 0], [1, 1, 0], 8)
+        ObservedSpace.unknown([0, 0, 0], [1, 1, 0], 8)
 
 
 def test_an_entity_keeps_its_grid_through_its_folder(tmp_path):
