@@ -14,6 +14,14 @@ and before the scene is assembled:
   the observation's view would see is covered by observed surface (``view_coverage`` >=
   ``accept_min_coverage``). Screened-only candidates (no full fit) are kept only as the physical check's
   backups, judged when it asks for one (their AE where they would be placed, ``placed_error``).
+* **Size agreement.** The models that explain the observation about as well as the chosen one (the
+  accepted fully fitted candidates of its class whose two-sided AE is within ``size_spread_ae_ratio``
+  times the chosen one's) must agree on the object's size: when one of them is fitted more than
+  ``accept_max_size_spread`` larger or smaller along some extent (horizontal extents sorted, so the
+  test does not depend on the yaw), the observation does not determine that extent. The extent is
+  then the library's guess (the unseen half of a wardrobe, the unseen thickness of a book, a round
+  cup's handle behind it) and the object keeps its observed mesh: a model whose size is a guess is
+  not known to be better than the scan.
 
 When no candidate passes, the replacer exports the object as its observed mesh (collision: its
 convex hull or hull pieces, mass from their volume) and the record says why, e.g.
@@ -28,11 +36,15 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from cad_replacement.alignment import ModelGeometry, PreparedObservation
 from cad_replacement.observation import ObjectObservation
 from cad_replacement.replace_config import CadReplacementConfig
 from cad_replacement.replace_object import CandidateResult, ObjectReplacement, _final_error
+
+#: Extents below this (m) count as this in the size-agreement test (no division by a zero extent).
+SIZE_FLOOR_M = 1e-3
 
 
 def ae_limit(observation: ObjectObservation, cfg: CadReplacementConfig) -> float:
@@ -61,6 +73,35 @@ def placed_error(prepared: PreparedObservation, candidate: CandidateResult, geom
     values = geom.model.zero_configuration() if geom.model.movable_joints else {}
     ae = _final_error(prepared, geom, candidate.placement, values, cfg)
     return dataclasses.replace(candidate, ae=ae, stage="placed", joint_values=dict(values))
+
+
+def fitted_extents(candidate: CandidateResult) -> NDArray[np.float64]:
+    """The fitted model's box extents in its own upright frame: the two horizontal ones sorted, then
+    the height (m), so candidates in other yaws or lying on other faces compare extent by extent."""
+    extents = np.asarray(candidate.placement.scale, np.float64) * np.asarray(candidate.match.features.box_size,
+                                                                                np.float64)
+    # the model axis that points up (the candidate stands upright on one of its faces); the other two
+    # are horizontal whatever the yaw
+    up = int(np.argmax(np.abs(np.asarray(candidate.placement.rotation, np.float64)[2])))
+    x, y = np.delete(extents, up)
+    return np.array([min(x, y), max(x, y), extents[up]])
+
+
+def size_spread(chosen: CandidateResult, others: list[CandidateResult],
+                cfg: CadReplacementConfig) -> tuple[float, CandidateResult | None]:
+    """Largest relative difference of an extent between ``chosen`` and the fully fitted ``others``
+    whose two-sided AE is within ``size_spread_ae_ratio`` x the chosen one's, and that candidate."""
+    limit = cfg.size_spread_ae_ratio * chosen.ae.ae
+    near = [c for c in others if c is not chosen and c.stage == "full" and math.isfinite(c.ae.ae) and c.ae.ae <= limit]
+    worst, which = 0.0, None
+    if not near:
+        return worst, which
+    base = fitted_extents(chosen)
+    for c in near:
+        rel = float(np.max(np.abs(fitted_extents(c) - base) / np.maximum(base, SIZE_FLOOR_M)))
+        if rel > worst:
+            worst, which = rel, c
+    return worst, which
 
 
 def rejection(candidate: CandidateResult, limit: float, cfg: CadReplacementConfig) -> str:
@@ -134,9 +175,18 @@ def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplac
             verdict.reason = f"{why} ({best.key})"
         else:
             verdict.reason = rep.message or "no CAD candidate"
-    elif accepted[0].class_name != detected:
-        verdict.substituted_from = detected
+    else:
+        if cfg.accept_gate and cfg.accept_max_size_spread > 0.0:
+            spread, other = size_spread(accepted[0], accepted[1:], cfg)
+            if spread > cfg.accept_max_size_spread and other is not None:
+                verdict.reason = (f"fitted models disagree on its size by {100 * spread:.0f} % > "
+                                  f"{100 * cfg.accept_max_size_spread:.0f} % ({accepted[0].key} against "
+                                  f"{other.key}): the observation does not determine it")
+                verdict.accepted, verdict.backups = [], []
+                return verdict
+        if accepted[0].class_name != detected:
+            verdict.substituted_from = detected
     return verdict
 
 
-__all__ = ["Verdict", "ae_limit", "fit_figures", "judge", "placed_error", "rejection"]
+__all__ = ["Verdict", "ae_limit", "fit_figures", "fitted_extents", "judge", "placed_error", "rejection", "size_spread"]

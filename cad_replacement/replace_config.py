@@ -169,6 +169,12 @@ class CadReplacementConfig:
     accept_ae_rel: float = 0.02
     accept_ae_max: float = 0.03
     accept_min_coverage: float = 0.35
+    #: Size agreement (``acceptance``): the accepted models whose two-sided AE is within
+    #: ``size_spread_ae_ratio`` x the chosen one's must agree on every fitted extent within this share;
+    #: otherwise the observation does not determine the size and the object keeps its observed mesh.
+    #: 0 turns the test off.
+    accept_max_size_spread: float = 0.3
+    size_spread_ae_ratio: float = 1.5
     #: A model of another (interchangeable) class replaces the best model of the detected class only
     #: when its two-sided AE is at most ``1 - class_margin`` times that one's: 0.2 is the tie the
     #: selection score already gives the detected class (``class_ae_factor`` 0.25: 1 / 1.25 = 0.8),
@@ -218,6 +224,8 @@ class CadReplacementConfig:
             raise ValueError("need 0 < accept_ae_min <= accept_ae_max and accept_ae_rel >= 0")
         if not 0.0 <= self.accept_min_coverage <= 1.0:
             raise ValueError("accept_min_coverage must be within [0, 1]")
+        if self.accept_max_size_spread < 0.0 or self.size_spread_ae_ratio < 1.0:
+            raise ValueError("need accept_max_size_spread >= 0 and size_spread_ae_ratio >= 1")
         if not 0.0 <= self.class_margin < 1.0:
             raise ValueError("class_margin must be within [0, 1)")
 

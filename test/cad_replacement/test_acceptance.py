@@ -278,3 +278,58 @@ def test_an_object_the_graph_hangs_on_a_wall_is_mounted_there():
     assert obj.parent == "wall_2" and obj.support == "fixed"
     rec = next(r for r in result.records if r.name == "monitor_3")
     assert "mounted on wall_2" in rec.message
+
+
+# ----------------------------------------------------------------------------- size agreement
+
+
+def _fitted(key: str, ae: float, size: tuple[float, float, float], yaw_deg: float = 0.0,
+            lying: bool = False) -> CandidateResult:
+    """A fully fitted candidate whose model box (0.2 x 0.1 x 0.3 m at scale 1) is scaled to ``size``
+    (model axes), turned by ``yaw_deg`` and, ``lying``, laid on its side (model z along map x)."""
+    from cad_replacement.alignment import Placement
+
+    model = np.array([0.2, 0.1, 0.3])
+    turn = np.radians(yaw_deg)
+    rz = np.array([[np.cos(turn), -np.sin(turn), 0.0], [np.sin(turn), np.cos(turn), 0.0], [0.0, 0.0, 1.0]])
+    side = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]) if lying else np.eye(3)
+    placement = Placement(rz @ side, np.zeros(3), np.asarray(size) / model)
+    match = SimpleNamespace(entry=SimpleNamespace(key=key, class_name="chair"), error=0.1,
+                            features=SimpleNamespace(box_size=model))
+    return CandidateResult(match, placement, AlignmentError(ae, ae, ae, 1.0, 1.0, 1.0), ae,  # type: ignore[arg-type]
+                           {}, "full", 0.0, 1)
+
+
+def test_fitted_extents_do_not_depend_on_the_yaw_and_follow_the_face_a_model_lies_on():
+    from cad_replacement.acceptance import fitted_extents
+
+    for yaw in (0.0, 30.0, 45.0, 90.0, -135.0):
+        assert fitted_extents(_fitted("a", 0.01, (0.5, 0.4, 0.9), yaw)) == pytest.approx([0.4, 0.5, 0.9])
+    # lying on its side: the model's height is horizontal, its x extent vertical
+    assert fitted_extents(_fitted("a", 0.01, (0.5, 0.4, 0.9), 20.0, lying=True)) == pytest.approx([0.4, 0.9, 0.5])
+
+
+def test_models_that_explain_the_observation_equally_but_disagree_on_its_size_leave_the_observed_mesh():
+    cfg = CadReplacementConfig()
+    small = _fitted("chair/small", 0.008, (0.45, 0.45, 0.9))
+    big = _fitted("chair/big", 0.010, (0.45, 0.80, 0.9), yaw_deg=90.0)  # 78 % deeper, about as good a fit
+    verdict = judge(_replacement([small, big]), _chair_observation(), cfg)
+    assert verdict.accepted == [] and verdict.backups == []
+    assert verdict.reason.startswith("fitted models disagree on its size by 78 % > 30 %"), verdict.reason
+    assert "chair/small against chair/big" in verdict.reason
+    # the test is part of the gate and can be switched off on its own
+    for off in (CadReplacementConfig(accept_max_size_spread=0.0), CadReplacementConfig(accept_gate=False)):
+        assert judge(_replacement([small, big]), _chair_observation(), off).accepted[0] is small
+
+
+def test_models_that_agree_on_the_size_or_fit_clearly_worse_do_not_block_the_choice():
+    cfg = CadReplacementConfig()
+    chosen = _fitted("chair/a", 0.008, (0.45, 0.50, 0.9))
+    same = _fitted("chair/b", 0.009, (0.50, 0.47, 0.95), yaw_deg=90.0)  # another yaw, sizes within 11 %
+    worse = _fitted("chair/c", 0.020, (0.45, 0.90, 0.9))  # disagrees, but 2.5x the AE: no alternative
+    verdict = judge(_replacement([chosen, same, worse]), _chair_observation(), cfg)
+    assert verdict.accepted[0] is chosen and verdict.reason == ""
+    with pytest.raises(ValueError):
+        CadReplacementConfig(accept_max_size_spread=-0.1)
+    with pytest.raises(ValueError):
+        CadReplacementConfig(size_spread_ae_ratio=0.9)
