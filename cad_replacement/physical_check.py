@@ -464,6 +464,7 @@ def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
     to its bottom. The object (and what rests on it) moves vertically onto it and, when its centre
     is closer than a quarter of its footprint to the surface's edge or off it (it would tip over in
     a simulator), horizontally onto it; ``parent_link`` becomes the link carrying that surface.
+    Objects on an observed mesh (a scan kept instead of a CAD model) are left where they were seen.
     Returns the gaps closed (m, by object).
     """
     from cad_replacement.actions import descendants, support_spots
@@ -473,6 +474,11 @@ def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
         if obj.parent == MAP_ROOT:
             continue
         parent = scene.object(obj.parent)
+        if parent.model.source == "observed":
+            # A scan has no analytic surfaces, only its top: a book seen on a cabinet's inner shelf went
+            # up onto the top by 30 cm. What rests on a scan stays where it was seen (the replacer put it
+            # at its support's observed height); ``settle_observed`` gives it a support patch there.
+            continue
         centre, radius, height = _footprint(obj)
         spots = support_spots(parent)
         fitting = [sp for sp in spots if sp.clearance is None or sp.clearance >= 0.9 * height] or spots

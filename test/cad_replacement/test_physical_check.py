@@ -283,3 +283,37 @@ def test_a_much_worse_fitting_support_alternative_is_not_taken_for_consistency()
     scene, alternatives, _board = _shelf_with_cup(None)
     paper(scene, alternatives)
     assert paper.last_report.support_switches == {}  # the paper's check has no such step
+
+
+def test_what_rests_inside_a_scan_stays_where_it_was_seen():
+    """An object whose support kept its observed mesh (the acceptance gate dropped the CAD model) is not
+    snapped: a scan has no analytic surfaces, only its top, and a book seen on a cabinet's inner shelf
+    went up onto the top (30 cm on gen-5151's ground truth). It stays; ``settle_observed`` patches under it."""
+    from cad_replacement.actions import support_spots
+    from cad_replacement.observed_physics import settle_observed
+    from cad_replacement.physical_check import snap_to_supports
+    from cad_replacement.replacer import observed_mesh_object
+    from recon_core.contact_graph import GraphNode
+    from recon_core.entity import Entity
+    from recon_core.geometry.box_fit import fit_gravity_box
+
+    cabinet = build_model("cabinet", 0)
+    cad = PlacedObject("cabinet_1", "cabinet", cabinet, _pose(0, 0, 0), parent="floor")
+    shelf = min((sp for sp in support_spots(cad) if sp.clearance is not None), key=lambda sp: sp.height)
+    mesh = cabinet.mesh()
+    node = GraphNode(1, "cabinet_1", "cabinet", "object", box=fit_gravity_box(np.asarray(mesh.vertices)))
+    scan = observed_mesh_object(node, Entity.from_mesh(1, "cabinet_1", "cabinet", mesh), "floor", "fixed")
+    assert scan is not None and scan.model.source == "observed"
+    top = max(sp.height for sp in support_spots(scan))
+    assert top > shelf.height + 0.1  # the scan's only surface is its top, far above the shelf
+    book = build_model("book", 0)
+    pose = _pose(*shelf.polygon.mean(axis=0), 0.0)
+    pose[2, 3] = shelf.height - float(book.mesh().vertices[:, 2].min())
+    obj = PlacedObject("book_1", "book", book, pose, parent="cabinet_1", support="floating", movable=True)
+    scene = ReplacedScene("room", [PlacedObject("floor", "floor", box_model("floor", (6, 6, 0.05)),
+                                                _pose(0, 0, -0.05)), scan, obj])
+    before = obj.pose.copy()
+    gaps = snap_to_supports(scene)
+    assert "book_1" not in gaps and np.array_equal(scene.object("book_1").pose, before)
+    changes = settle_observed(scene.objects)
+    assert changes["cabinet_1"]["patches"] == 1  # it rests on a patch at the shelf's height
