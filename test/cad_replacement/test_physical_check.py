@@ -317,3 +317,11 @@ def test_what_rests_inside_a_scan_stays_where_it_was_seen():
     assert "book_1" not in gaps and np.array_equal(scene.object("book_1").pose, before)
     changes = settle_observed(scene.objects)
     assert changes["cabinet_1"]["patches"] == 1  # it rests on a patch at the shelf's height
+    # a cup 2 cm above the scan's top stands on it: snapped down onto the top as before
+    cup_model = build_model("cup", 0)
+    cup_pose = _pose(*shelf.polygon.mean(axis=0), 0.0)
+    cup_pose[2, 3] = top + 0.02 - float(cup_model.mesh().vertices[:, 2].min())
+    cup = PlacedObject("cup_1", "cup", cup_model, cup_pose, parent="cabinet_1", support="floating", movable=True)
+    scene = ReplacedScene("room", [*scene.objects, cup])
+    gaps = snap_to_supports(scene)
+    assert gaps["cup_1"] == pytest.approx(0.02, abs=1e-6) and "book_1" not in gaps
