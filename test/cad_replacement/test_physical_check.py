@@ -322,6 +322,10 @@ def test_what_rests_inside_a_scan_stays_where_it_was_seen():
     cup_pose = _pose(*shelf.polygon.mean(axis=0), 0.0)
     cup_pose[2, 3] = top + 0.02 - float(cup_model.mesh().vertices[:, 2].min())
     cup = PlacedObject("cup_1", "cup", cup_model, cup_pose, parent="cabinet_1", support="floating", movable=True)
-    scene = ReplacedScene("room", [*scene.objects, cup])
+    # a book standing on the scan 6 cm below its top (a piece of it in the scan) reaches above: snapped too
+    tall = PlacedObject("book_2", "book", book, pose.copy(), parent="cabinet_1", support="floating", movable=True)
+    tall.pose[2, 3] += top - 0.06 - shelf.height
+    scene = ReplacedScene("room", [*scene.objects, cup, tall])
     gaps = snap_to_supports(scene)
-    assert gaps["cup_1"] == pytest.approx(0.02, abs=1e-6) and "book_1" not in gaps
+    assert gaps["cup_1"] == pytest.approx(0.02, abs=1e-6) and gaps["book_2"] == pytest.approx(0.06, abs=1e-6)
+    assert "book_1" not in gaps
