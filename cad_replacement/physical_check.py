@@ -41,11 +41,6 @@ MAX_ROUNDS = 10
 #: A support whose surfaces are farther than this (m) from where a child was seen resting makes the
 #: snap move the child: the support's candidates are searched for one that holds it where it was.
 SUPPORT_MISMATCH_M = 0.02
-#: An object whose top stays more than this (m) below the top of the scan it rests on (an observed mesh:
-#: no analytic surfaces, only its top) stands inside it, on a shelf the scan does not describe: the snap
-#: leaves it where it was seen. One that reaches above stands on the top (a cup on a table's scan, a book
-#: standing on a cabinet's) and is snapped onto it.
-SCAN_INSIDE_MARGIN_M = 0.01
 #: Alternatives of a support tried, and how much worse (score ratio) than the choice they may fit.
 SUPPORT_ALTERNATIVES = 3
 SUPPORT_SCORE_RATIO = 1.5
@@ -469,8 +464,6 @@ def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
     to its bottom. The object (and what rests on it) moves vertically onto it and, when its centre
     is closer than a quarter of its footprint to the surface's edge or off it (it would tip over in
     a simulator), horizontally onto it; ``parent_link`` becomes the link carrying that surface.
-    An object wholly below the top of an observed mesh (a scan kept instead of a CAD model, whose only
-    surface here is its top; ``SCAN_INSIDE_MARGIN_M``) rests inside it and is left where it was seen.
     Returns the gaps closed (m, by object).
     """
     from cad_replacement.actions import descendants, support_spots
@@ -486,12 +479,6 @@ def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
         under = [sp for sp in fitting if points_in_polygon(centre[None], sp.polygon)[0]] or fitting
         bottom = _lowest(obj)
         spot = min(under, key=lambda sp: abs(sp.height - bottom))
-        if parent.model.source == "observed" and bottom + height < spot.height - SCAN_INSIDE_MARGIN_M:
-            # A scan has no analytic surfaces, only its top: a book seen on a cabinet's inner shelf went
-            # up onto the top by 30 cm. What lies wholly below a scan's top stands inside it and stays where
-            # it was seen (the replacer put it at its support's observed height); ``settle_observed`` gives
-            # it a support patch there.
-            continue
         move = np.zeros(3)
         move[2] = spot.height - bottom
         if parent.model.source != "box":  # layout slabs are the room: nothing falls off the floor
