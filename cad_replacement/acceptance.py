@@ -93,15 +93,12 @@ def size_spread(chosen: CandidateResult, others: list[CandidateResult],
     whose two-sided AE is within ``size_spread_ae_ratio`` x the chosen one's, and that candidate."""
     limit = cfg.size_spread_ae_ratio * chosen.ae.ae
     near = [c for c in others if c is not chosen and c.stage == "full" and math.isfinite(c.ae.ae) and c.ae.ae <= limit]
-    worst, which = 0.0, None
     if not near:
-        return worst, which
+        return 0.0, None
     base = fitted_extents(chosen)
-    for c in near:
-        rel = float(np.max(np.abs(fitted_extents(c) - base) / np.maximum(base, SIZE_FLOOR_M)))
-        if rel > worst:
-            worst, which = rel, c
-    return worst, which
+    spreads = [float(np.max(np.abs(fitted_extents(c) - base) / np.maximum(base, SIZE_FLOOR_M))) for c in near]
+    k = int(np.argmax(spreads))
+    return spreads[k], near[k]
 
 
 def rejection(candidate: CandidateResult, limit: float, cfg: CadReplacementConfig) -> str:
@@ -182,6 +179,10 @@ def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplac
                 verdict.reason = (f"fitted models disagree on its size by {100 * spread:.0f} % > "
                                   f"{100 * cfg.accept_max_size_spread:.0f} % ({accepted[0].key} against "
                                   f"{other.key}): the observation does not determine it")
+                # the record's per-candidate verdicts say the same: none of them is kept
+                kept = {id(c) for c in accepted}
+                verdict.rejections = ["size not determined by the observation" if id(c) in kept else why
+                                      for c, why in zip(cands, rejections, strict=True)]
                 verdict.accepted, verdict.backups = [], []
                 return verdict
         if accepted[0].class_name != detected:

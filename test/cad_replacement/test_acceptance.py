@@ -317,6 +317,7 @@ def test_models_that_explain_the_observation_equally_but_disagree_on_its_size_le
     assert verdict.accepted == [] and verdict.backups == []
     assert verdict.reason.startswith("fitted models disagree on its size by 78 % > 30 %"), verdict.reason
     assert "chair/small against chair/big" in verdict.reason
+    assert verdict.rejections == ["size not determined by the observation"] * 2  # the record says so per candidate
     # the test is part of the gate and can be switched off on its own
     for off in (CadReplacementConfig(accept_max_size_spread=0.0), CadReplacementConfig(accept_gate=False)):
         assert judge(_replacement([small, big]), _chair_observation(), off).accepted[0] is small
