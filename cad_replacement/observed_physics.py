@@ -11,8 +11,10 @@ collides as convex pieces (``collision.observed_collisions``). A real scan is no
 
 ``settle_observed(objects)`` runs on the placed scene: before the physical check, a movable observed
 object drops the pieces that reach more than ``PIECE_DEPTH`` into another object (they are that
-object's surface), never all of them; after it, every observed object gets a thin support patch
-under each object resting on it, at the height the child ended up.
+object's surface), never all of them, and a fixed one those reaching into a movable object resting
+on it (a book standing on a cabinet scan whose mask took the book's lower half: the simulator threw
+the book off); after it, again, and every observed object gets a thin support patch under each
+object resting on it, at the height the child ended up.
 """
 
 from __future__ import annotations
@@ -193,7 +195,7 @@ def settle_observed(objects: Sequence[PlacedObject], *, drop: bool = True,
         return {}
     # every object's pieces and their bounds, only when some piece may be dropped (the bounds once per
     # piece: trimesh's cached ``bounds`` hashes the mesh at every read, 95k reads took 3 s on a 20-object scene)
-    dropping = drop and any(o.movable and o.model.links[0].collisions for o in observed)
+    dropping = drop and any(o.model.links[0].collisions for o in observed)
     world = {o.name: _PlacedPieces(o) for o in objects} if dropping else {}
     bounds = {name: pieces.bounds for name, pieces in world.items()}
     changes: dict[str, dict[str, int]] = {}
@@ -202,8 +204,11 @@ def settle_observed(objects: Sequence[PlacedObject], *, drop: bool = True,
         shapes: list[CollisionShape] = list(link.collisions or ())
         kept = shapes
         dropped = 0
-        if drop and obj.movable and shapes:
-            names = [o.name for o in objects if o.name != obj.name and o.parent != obj.name]
+        if drop and shapes:
+            # a movable scan yields to everything but what rests on it; a fixed one (a cabinet, a table)
+            # to the movable objects resting on it: the piece is their surface, which its mask took
+            names = [o.name for o in objects if o.name != obj.name and o.parent != obj.name] if obj.movable \
+                else [o.name for o in objects if o.parent == obj.name and o.movable]
             others = [(world[n], k) for n in names for k in range(len(world[n]))]
             other_bounds = np.concatenate([bounds[n] for n in names]) if names else np.zeros((0, 2, 3))
             own = world[obj.name]

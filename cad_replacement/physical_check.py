@@ -25,6 +25,7 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
@@ -33,6 +34,9 @@ from numpy.typing import NDArray
 from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
 from cad_replacement.solids import ObjectSolids, penetration_between
 from recon_core.geometry.polygon import point_segment_distances, points_in_polygon
+
+if TYPE_CHECKING:  # actions imports this module
+    from cad_replacement.actions import SupportSpot
 
 #: Penetration (m) above which a pair is a conflict (the issue's 1 cm).
 MAX_PENETRATION_M = 0.01
@@ -229,12 +233,31 @@ def support_mismatch(parent: PlacedObject, kids: Sequence[PlacedObject]) -> floa
     spots = support_spots(parent)
     worst = 0.0
     for kid in kids:
-        centre, _radius, height = _footprint(kid)
-        fitting = [sp for sp in spots if sp.clearance is None or sp.clearance >= 0.9 * height] or spots
-        under = [sp for sp in fitting if points_in_polygon(centre[None], sp.polygon)[0]] or fitting
-        bottom = _lowest(kid)
-        worst = max(worst, min(abs(sp.height - bottom) for sp in under))
+        worst = max(worst, abs(support_for(parent, kid, spots).height - _lowest(kid)))
     return worst
+
+
+#: A child of an object kept as its scan rests on one of the scan's inner levels only when its bottom is
+#: this close (m) to it: it was seen there. Farther, it goes onto the scan's top as on any unknown solid
+#: (a real kitchen's cup, placed by the graph 26 cm under the table scan's top, belongs on that top).
+SCAN_LEVEL_TOLERANCE_M = 0.03
+
+
+def support_for(parent: PlacedObject, obj: PlacedObject, spots: Sequence[SupportSpot]) -> SupportSpot:
+    """The surface of ``parent`` that ``obj`` rests on (``spots``: ``support_spots(parent)``).
+
+    One it fits on (its height under the surface's clearance: a bottle on a cabinet never goes into a
+    closed drawer), preferring those under the object's centre, nearest to its bottom. A scan's inner
+    levels (``scan_features``: every surface but its top) count only within ``SCAN_LEVEL_TOLERANCE_M``.
+    """
+    centre, _radius, height = _footprint(obj)
+    bottom = _lowest(obj)
+    if parent.model.source == "observed" and len(spots) > 1:
+        top = max(spots, key=lambda sp: sp.height)
+        spots = [sp for sp in spots if sp is top or abs(sp.height - bottom) <= SCAN_LEVEL_TOLERANCE_M]
+    fitting = [sp for sp in spots if sp.clearance is None or sp.clearance >= 0.9 * height] or list(spots)
+    under = [sp for sp in fitting if points_in_polygon(centre[None], sp.polygon)[0]] or fitting
+    return min(under, key=lambda sp: abs(sp.height - bottom))
 
 
 #: Largest horizontal move (m) that takes an object out of a wall: farther, the wall or the pose is
@@ -459,11 +482,9 @@ def _into_surface(corners: NDArray[np.float64], polygon: NDArray[np.float64],
 def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
     """Final snap (Sec. 4.4): rest every supported object on its parent's CAD support surface.
 
-    The surface is one the object fits on (its height under the surface's clearance: a bottle on a
-    cabinet never goes into a closed drawer), preferring those under the object's centre, nearest
-    to its bottom. The object (and what rests on it) moves vertically onto it and, when its centre
-    is closer than a quarter of its footprint to the surface's edge or off it (it would tip over in
-    a simulator), horizontally onto it; ``parent_link`` becomes the link carrying that surface.
+    The surface is ``support_for``'s choice. The object (and what rests on it) moves vertically onto
+    it and, when its centre is closer than a quarter of its footprint to the surface's edge or off it
+    (it would tip over in a simulator), horizontally onto it; ``parent_link`` becomes the link carrying that surface.
     Returns the gaps closed (m, by object).
     """
     from cad_replacement.actions import descendants, support_spots
@@ -473,14 +494,10 @@ def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
         if obj.parent == MAP_ROOT:
             continue
         parent = scene.object(obj.parent)
-        centre, radius, height = _footprint(obj)
-        spots = support_spots(parent)
-        fitting = [sp for sp in spots if sp.clearance is None or sp.clearance >= 0.9 * height] or spots
-        under = [sp for sp in fitting if points_in_polygon(centre[None], sp.polygon)[0]] or fitting
-        bottom = _lowest(obj)
-        spot = min(under, key=lambda sp: abs(sp.height - bottom))
+        centre, radius, _height = _footprint(obj)
+        spot = support_for(parent, obj, support_spots(parent))
         move = np.zeros(3)
-        move[2] = spot.height - bottom
+        move[2] = spot.height - _lowest(obj)
         if parent.model.source != "box":  # layout slabs are the room: nothing falls off the floor
             move[:2] = _onto_surface(centre, spot.polygon, 0.5 * radius)
             if spot.clearance is not None:
@@ -523,4 +540,4 @@ def support_gap(obj: PlacedObject, support_z: float) -> float:
 
 
 __all__ = ["MAX_PENETRATION_M", "CheckReport", "PhysicalCheck", "pair_penetrations", "posed_mesh", "snap_to_supports",
-           "support_gap", "support_mismatch"]
+           "support_for", "support_gap", "support_mismatch"]

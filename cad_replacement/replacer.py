@@ -36,7 +36,8 @@ import trimesh
 
 from cad_replacement.acceptance import ae_limit, fit_figures, judge, placed_error, rejection
 from cad_replacement.alignment import PreparedObservation
-from cad_replacement.cad.model import CadModel, Link, bounding_box_features
+from cad_replacement.cad.features import scan_features
+from cad_replacement.cad.model import CadModel, Link
 from cad_replacement.collision import observed_collisions
 from cad_replacement.geometry_cache import GeometryCache, library_store
 from cad_replacement.layout_models import MIN_LAYOUT_THICKNESS, box_model
@@ -250,7 +251,7 @@ def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: 
     # meaningless, and would run again at every map update; a movable one grounded, so a one-sided scan stands
     grounded = node.movable  # a fixed one (a table) keeps the space under it free
     link = Link("body", mesh, OBSERVED_RGBA, collisions=lambda: observed_collisions(mesh, grounded=grounded))
-    model = CadModel(node.class_name, f"observed_{node.id}", (link,), (), bounding_box_features(mesh),
+    model = CadModel(node.class_name, f"observed_{node.id}", (link,), (), scan_features(mesh),
                      source="observed")
     return PlacedObject(node.name, node.class_name, model, pose, parent=parent, support=support,
                         movable=node.movable, entity_id=node.id, cad_id="observed")

@@ -6,7 +6,8 @@
 * ``gravity_aligned_box``: the minimal-area box around points whose vertical axis is gravity.
 * ``find_support_surfaces``: upward horizontal regions of a mesh with outline and free clearance
   (real surfaces only: pieces at one height merged, slivers and sloped patches dropped).
-* ``mesh_features``/``model_mesh_features``: the three above bundled into ``ModelFeatures``.
+* ``mesh_features``/``model_mesh_features``: the three above bundled into ``ModelFeatures``;
+  ``scan_features``: the box and support levels of an object kept as its scan.
 
 Procedural models get their features analytically (``assembly.py``); imported models and
 reconstructed object meshes use these functions.
@@ -173,6 +174,31 @@ def find_support_surfaces(
                 )
             )
     return surfaces
+
+
+#: A scan's surfaces within this (m) of its top are its top: the top face (the box's footprint) stands for them.
+SCAN_TOP_BAND = 0.02
+
+
+def scan_features(mesh: trimesh.Trimesh, *, seed: int = 0) -> ModelFeatures:
+    """Box and support surfaces of an object kept as its scan (given with z up, origin at its bottom).
+
+    An object no CAD model explains keeps its observed mesh, and what was seen inside it (a book on a
+    cabinet's inner shelf, a cup on a fridge's shelf) must rest where it was seen, not on the scan's
+    top (the snap lifted gen-5151's books 13-30 cm). The top is the box's footprint at its highest
+    point, unbounded above, as before: a scan's top is rarely seen whole (a cup hides the table under
+    it). Below it, ``find_support_surfaces`` finds the levels a camera saw (upward, flat, at least
+    10 x 10 cm of surface); those within ``SCAN_TOP_BAND`` of the top are the top. No planes: a scan
+    is not matched against anything.
+    """
+    if len(mesh.faces) == 0:
+        return ModelFeatures(box_center=np.zeros(3), box_size=np.zeros(3))
+    lo, hi = np.asarray(mesh.bounds[0], np.float64), np.asarray(mesh.bounds[1], np.float64)
+    top = SupportSurface(height=float(hi[2]), polygon=np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]],
+                                                                [lo[0], hi[1]]]))
+    inner = [s for s in find_support_surfaces(mesh, seed=seed) if s.height < hi[2] - SCAN_TOP_BAND]
+    return ModelFeatures(box_center=0.5 * (lo + hi), box_size=hi - lo,
+                         support_surfaces=(top, *sorted(inner, key=lambda s: -s.height)))
 
 
 def mesh_features(

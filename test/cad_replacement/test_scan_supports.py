@@ -1,0 +1,133 @@
+"""Support levels of an object kept as its scan (issue 22): what was seen inside it rests where it was seen.
+
+Before, a scan's only support surface was its top: on gen-5151's ground-truth entities the final snap
+lifted two books and a cup from a cabinet scan's inner shelves onto its top, 13-30 cm.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from cad_replacement.actions import support_spots
+from cad_replacement.cad.features import SCAN_TOP_BAND, scan_features
+from cad_replacement.export import export_scene
+from cad_replacement.layout_models import box_model
+from cad_replacement.observed_physics import settle_observed
+from cad_replacement.physical_check import SCAN_LEVEL_TOLERANCE_M, snap_to_supports, support_for
+from cad_replacement.scene_model import PlacedObject, ReplacedScene
+from recon_core.contact_graph import GraphNode
+from recon_core.entity import Entity
+from recon_core.geometry.box_fit import fit_gravity_box
+from scene_recon.evaluation.physics import check_mujoco, check_pybullet
+
+#: An open shelf unit 0.8 m wide, 0.4 m deep, 0.9 m tall with boards 2 cm thick: the middle one's top at 0.46 m.
+SHELF_TOP = 0.46
+UNIT_TOP = 0.90
+
+
+def _shelf_unit() -> trimesh.Trimesh:
+    t = 0.02
+    parts = [
+        trimesh.creation.box([0.8, 0.4, t]).apply_translation([0.0, 0.0, t / 2]),              # bottom board
+        trimesh.creation.box([0.8, 0.4, t]).apply_translation([0.0, 0.0, UNIT_TOP - t / 2]),   # top board
+        trimesh.creation.box([0.8, 0.4, t]).apply_translation([0.0, 0.0, SHELF_TOP - t / 2]),  # middle shelf
+        trimesh.creation.box([t, 0.4, UNIT_TOP]).apply_translation([-0.4 + t / 2, 0.0, UNIT_TOP / 2]),
+        trimesh.creation.box([t, 0.4, UNIT_TOP]).apply_translation([0.4 - t / 2, 0.0, UNIT_TOP / 2]),
+        trimesh.creation.box([0.8, t, UNIT_TOP]).apply_translation([0.0, 0.2 - t / 2, UNIT_TOP / 2]),  # back
+    ]
+    return trimesh.util.concatenate(parts)
+
+
+def _observed(nid: int, name: str, class_name: str, mesh: trimesh.Trimesh, movable: bool,
+              parent: str) -> PlacedObject:
+    from cad_replacement.replacer import observed_mesh_object
+
+    node = GraphNode(nid, name, class_name, "object", box=fit_gravity_box(np.asarray(mesh.vertices)), movable=movable)
+    obj = observed_mesh_object(node, Entity.from_mesh(nid, name, class_name, mesh), parent,
+                               "floating" if movable else "fixed")
+    assert obj is not None
+    return obj
+
+
+def _book(nid: int, bottom: float, x: float = 0.0) -> PlacedObject:
+    mesh = trimesh.creation.box([0.22, 0.16, 0.03]).apply_translation([x, -0.02, bottom + 0.015])
+    return _observed(nid, f"book_{nid}", "book", mesh, True, parent="cabinet_1")
+
+
+def _bottom(obj: PlacedObject) -> float:
+    v = np.asarray(obj.model.links[0].mesh.vertices)
+    return float((v @ obj.pose[:3, :3].T + obj.pose[:3, 3])[:, 2].min())
+
+
+def test_a_scan_has_its_top_and_the_levels_seen_below_it():
+    feats = scan_features(_shelf_unit())
+    heights = [s.height for s in feats.support_surfaces]
+    assert heights[0] == pytest.approx(UNIT_TOP)  # the top: the box's footprint, unbounded above
+    assert feats.support_surfaces[0].clearance is None
+    assert np.allclose(np.ptp(feats.support_surfaces[0].polygon, axis=0), [0.8, 0.4])
+    inner = {round(h, 3): s for h, s in zip(heights[1:], feats.support_surfaces[1:], strict=True)}
+    assert set(inner) == {SHELF_TOP, 0.02}  # the middle shelf and the bottom board (the top board is the top)
+    assert inner[SHELF_TOP].clearance == pytest.approx(UNIT_TOP - 0.02 - SHELF_TOP, abs=0.01)
+    assert all(h < UNIT_TOP - SCAN_TOP_BAND for h in inner)
+    # a scan with nothing flat inside it (a sphere) has its top alone
+    assert len(scan_features(trimesh.creation.icosphere(radius=0.1)).support_surfaces) == 1
+
+
+def test_what_was_seen_on_an_inner_shelf_stays_there_and_the_rest_goes_on_top():
+    cabinet = _observed(1, "cabinet_1", "cabinet", _shelf_unit(), False, parent="map")
+    on_shelf = _book(2, SHELF_TOP)
+    above_shelf = _book(3, SHELF_TOP + 0.02, x=0.25)  # mapped 2 cm high: still the shelf
+    far = _book(4, SHELF_TOP + 0.16, x=-0.25)  # nothing the scan saw within 3 cm: its top
+    scene = ReplacedScene("shelf", [cabinet, on_shelf, above_shelf, far])
+    spots = support_spots(cabinet)
+    assert support_for(cabinet, on_shelf, spots).height == pytest.approx(SHELF_TOP)
+    assert SCAN_LEVEL_TOLERANCE_M < 0.16
+    gaps = snap_to_supports(scene)
+    assert _bottom(on_shelf) == pytest.approx(SHELF_TOP, abs=1e-6) and gaps["book_2"] < 1e-6
+    assert _bottom(above_shelf) == pytest.approx(SHELF_TOP, abs=1e-6)
+    assert _bottom(far) == pytest.approx(UNIT_TOP, abs=1e-6)
+
+
+@pytest.mark.parametrize("check", [check_pybullet, check_mujoco], ids=["pybullet", "mujoco"])
+def test_a_book_on_a_scanned_shelf_stays_still(tmp_path, check):
+    floor_pose = np.eye(4)
+    floor_pose[2, 3] = -0.1  # a box model's origin is its bottom centre: the floor's top at z = 0
+    floor = PlacedObject("floor", "floor", box_model("floor", [3.0, 3.0, 0.1]), floor_pose)
+    cabinet = _observed(1, "cabinet_1", "cabinet", _shelf_unit(), False, parent="floor")
+    book = _book(2, SHELF_TOP)
+    scene = ReplacedScene("shelf", [floor, cabinet, book])
+    snap_to_supports(scene)
+    settle_observed(scene.objects)
+    report = check(export_scene(scene, tmp_path / "scene", glb=False).folder, seconds=2.0)
+    assert report.loaded and not report.errors
+    assert report.still_fraction == 1.0, report.displacement
+    assert _bottom(book) == pytest.approx(SHELF_TOP, abs=1e-6)
+
+
+def _book_on_a_bled_cabinet(tmp_path, drop: bool):
+    """A book standing on a cabinet scan whose mask took the book's lower 7 cm (bench-small, draw 1)."""
+    floor_pose = np.eye(4)
+    floor_pose[2, 3] = -0.1
+    floor = PlacedObject("floor", "floor", box_model("floor", [3.0, 3.0, 0.1]), floor_pose)
+    body = trimesh.creation.box([0.8, 0.4, 1.0]).apply_translation([0.0, 0.0, 0.5])
+    bleed = trimesh.creation.box([0.2, 0.04, 0.07]).apply_translation([0.1, 0.0, 1.035])
+    cabinet = _observed(1, "cabinet_1", "cabinet", trimesh.util.concatenate([body, bleed]), False, parent="floor")
+    book = _observed(2, "book_2", "book", trimesh.creation.box([0.2, 0.03, 0.28]).apply_translation(
+        [0.1, 0.0, 1.14]), True, parent="cabinet_1")
+    scene = ReplacedScene("bled", [floor, cabinet, book])
+    changes = settle_observed(scene.objects, drop=drop, patch=False)
+    snap_to_supports(scene)
+    changes_after = settle_observed(scene.objects, drop=drop)
+    report = check_pybullet(export_scene(scene, tmp_path / f"drop_{drop}", glb=False).folder, seconds=2.0)
+    return book, changes, changes_after, report
+
+
+def test_a_fixed_scan_gives_up_the_pieces_its_mask_took_of_what_stands_on_it(tmp_path):
+    book, changes, after, report = _book_on_a_bled_cabinet(tmp_path, drop=True)
+    assert _bottom(book) == pytest.approx(1.0, abs=1e-6)  # on the cabinet's own top, not on the bleed
+    assert changes["cabinet_1"]["dropped"] > 0 and after["cabinet_1"]["patches"] == 1
+    assert report.loaded and report.still_fraction == 1.0, report.displacement
+    _book, _c, _a, kept = _book_on_a_bled_cabinet(tmp_path, drop=False)
+    assert kept.still_fraction == 0.0, kept.displacement  # the bleed, kept, throws the book off
