@@ -20,6 +20,7 @@ from cad_replacement.scene_model import PlacedObject, ReplacedScene
 from recon_core.contact_graph import GraphNode
 from recon_core.entity import Entity
 from recon_core.geometry.box_fit import fit_gravity_box
+from recon_core.geometry.transforms import as_mesh
 from scene_recon.evaluation.physics import check_mujoco, check_pybullet
 
 #: An open shelf unit 0.8 m wide, 0.4 m deep, 0.9 m tall with boards 2 cm thick: the middle one's top at 0.46 m.
@@ -37,7 +38,7 @@ def _shelf_unit() -> trimesh.Trimesh:
         trimesh.creation.box([t, 0.4, UNIT_TOP]).apply_translation([0.4 - t / 2, 0.0, UNIT_TOP / 2]),
         trimesh.creation.box([0.8, t, UNIT_TOP]).apply_translation([0.0, 0.2 - t / 2, UNIT_TOP / 2]),  # back
     ]
-    return trimesh.util.concatenate(parts)
+    return as_mesh(trimesh.util.concatenate(parts))
 
 
 def _observed(nid: int, name: str, class_name: str, mesh: trimesh.Trimesh, movable: bool,
@@ -113,7 +114,8 @@ def _book_on_a_bled_cabinet(tmp_path, drop: bool):
     floor = PlacedObject("floor", "floor", box_model("floor", [3.0, 3.0, 0.1]), floor_pose)
     body = trimesh.creation.box([0.8, 0.4, 1.0]).apply_translation([0.0, 0.0, 0.5])
     bleed = trimesh.creation.box([0.2, 0.04, 0.07]).apply_translation([0.1, 0.0, 1.035])
-    cabinet = _observed(1, "cabinet_1", "cabinet", trimesh.util.concatenate([body, bleed]), False, parent="floor")
+    scan = as_mesh(trimesh.util.concatenate([body, bleed]))
+    cabinet = _observed(1, "cabinet_1", "cabinet", scan, False, parent="floor")
     book = _observed(2, "book_2", "book", trimesh.creation.box([0.2, 0.03, 0.28]).apply_translation(
         [0.1, 0.0, 1.14]), True, parent="cabinet_1")
     scene = ReplacedScene("bled", [floor, cabinet, book])
