@@ -47,6 +47,10 @@ MAX_ROUNDS = 10
 SUPPORT_MISMATCH_M = 0.02
 #: Alternatives of a support tried, and how much worse (score ratio) than the choice they may fit.
 SUPPORT_ALTERNATIVES = 3
+#: A support model that would move a child this far (m) from where it was seen, with no alternative
+#: that holds it, gives way to the object's scan (``_scan_holds``): the pose tolerance of the paper's
+#: evaluation (10 cm), beyond which the child is no longer where the camera saw it.
+SCAN_FALLBACK_MISMATCH_M = 0.10
 SUPPORT_SCORE_RATIO = 1.5
 #: Clearance (m) kept between a footprint and the outline of an enclosed support surface ...
 CONTAINED_MARGIN = 0.005
@@ -183,8 +187,15 @@ class PhysicalCheck:
         """Switch supports whose surfaces miss their children's observed heights (``support_mismatch``)
         to the first of their ``SUPPORT_ALTERNATIVES`` alternatives (scored within
         ``SUPPORT_SCORE_RATIO`` of the choice, when the alternatives carry scores) that holds every
-        child within ``SUPPORT_MISMATCH_M`` and collides with nothing but its children. ``objects`` and
-        ``solids`` are updated; returns name -> (mismatch before, after)."""
+        child within ``SUPPORT_MISMATCH_M`` and collides with nothing but its children.
+
+        When none does, the model would move a child more than ``SCAN_FALLBACK_MISMATCH_M`` and the
+        alternatives offer the object's scan (``alternatives[name].scan()``, the replacer's observed mesh
+        of it), the scan takes its place if it holds every child within ``SUPPORT_MISMATCH_M``: a
+        cabinet model whose shelves are 9 cm apart does not explain a 20 cm bottle seen standing inside
+        it (gen-4242), and the snap lifted the bottle 47 cm onto its top. The scan's levels
+        (``scan_features``) are where the children were seen. ``objects`` and ``solids`` are updated;
+        returns name -> (mismatch before, after)."""
         switched: dict[str, tuple[float, float]] = {}
         children: dict[str, list[PlacedObject]] = {}
         for o in scene:
@@ -222,7 +233,31 @@ class PhysicalCheck:
                 objects[name], solids[name] = trial, trial_solids
                 switched[name] = (before, after)
                 break
+            if name not in switched and before > SCAN_FALLBACK_MISMATCH_M:
+                self._scan_holds(name, parent, kids, alts, objects, solids, hulls, switched, before)
         return switched
+
+    def _scan_holds(self, name: str, parent: PlacedObject, kids: Sequence[PlacedObject],
+                    alts: Sequence[PlacedObject], objects: dict[str, PlacedObject],
+                    solids: dict[str, ObjectSolids], hulls: bool,
+                    switched: dict[str, tuple[float, float]], before: float) -> None:
+        """Put the object's scan in its place when the scan holds its children and no model did."""
+        scan_of = getattr(alts, "scan", None)
+        scan = scan_of() if callable(scan_of) else None
+        if scan is None:
+            return
+        _rest_like(scan, parent)
+        after = support_mismatch(scan, kids)
+        if after > SUPPORT_MISMATCH_M:
+            return
+        scan_solids = ObjectSolids(scan, hulls)
+        kid_names = {k.name for k in kids}
+        if any(scan_solids.overlaps(solids[n]) and penetration_between(scan_solids, solids[n])
+               > self.max_penetration * (1.5 if n == parent.parent else 1.0)
+               for n in solids if n != name and n not in kid_names):
+            return
+        objects[name], solids[name] = scan, scan_solids
+        switched[name] = (before, after)
 
 
 def support_mismatch(parent: PlacedObject, kids: Sequence[PlacedObject]) -> float:

@@ -515,7 +515,7 @@ class CadReplacer:
                     record.kind = "observed_mesh"
                 elif cached.replacement is not None:
                     alternatives[obj.name] = _RankedAlternatives(self, node, cached.replacement, parent, support,
-                                                                 cached.obs)
+                                                                 cached.obs, entity)
             if obj is None:
                 record.kind = "skipped"
                 records.append(record)
@@ -578,9 +578,12 @@ class _RankedAlternatives(Sequence[PlacedObject]):
     """
 
     def __init__(self, replacer: CadReplacer, node: GraphNode, rep: ObjectReplacement, parent: str,
-                 support: str, obs: ObjectObservation | None = None) -> None:
+                 support: str, obs: ObjectObservation | None = None, entity: Entity | None = None) -> None:
         self._args = (replacer, node, rep, parent, support)
         self._obs = obs
+        self._entity = entity
+        #: the object's scan, once the physical check asked for it (``scan``)
+        self.built_scan: PlacedObject | None = None
         self._prepared: PreparedObservation | None = None
         self._built: dict[int, PlacedObject | None] = {}
         #: The candidate behind each built alternative (a screened one with its AE measured where it is placed).
@@ -611,6 +614,17 @@ class _RankedAlternatives(Sequence[PlacedObject]):
             raise IndexError(index)
         return obj
 
+    def scan(self) -> PlacedObject | None:
+        """The object as its observed mesh, for a check that finds no model consistent with what was seen
+        (``PhysicalCheck._fit_supports``: what stands inside it); None without geometry or for the paper's
+        method, which always places a model."""
+        replacer, node, _rep, parent, support = self._args
+        if self._entity is None or replacer.config.method == "paper":
+            return None
+        if self.built_scan is None:
+            self.built_scan = observed_mesh_object(node, self._entity, parent, support)
+        return self.built_scan
+
     def _judged(self, cand: CandidateResult) -> CandidateResult | None:
         """A screened-only backup with its AE where it would be placed, or None when it fails the gate."""
         replacer = self._args[0]
@@ -632,6 +646,15 @@ def _note_switches(scene: ReplacedScene, records: list[ReplacementRecord],
         alts = alternatives.get(obj.name)
         record = by_name.get(obj.name)
         if not isinstance(alts, _RankedAlternatives) or record is None:
+            continue
+        if alts.built_scan is not None and obj is alts.built_scan:
+            held = sorted(o.name for o in scene if o.parent == obj.name)
+            record.reason = (f"no model of it has room where {', '.join(held)} stood inside it "
+                             f"({record.cad_id} and its alternatives): its scan holds them where they were seen")
+            record.message = "; ".join(m for m in (record.message, f"physical check: {record.cad_id} -> "
+                                                   "observed mesh") if m)
+            record.kind, record.cad_id = "observed_mesh", "observed"
+            record.pose, record.scale, record.joint_values = obj.pose.tolist(), obj.scale.tolist(), {}
             continue
         for index, cand in alts.built_candidates.items():
             built = alts._built.get(index)

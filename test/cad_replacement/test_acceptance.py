@@ -334,3 +334,23 @@ def test_models_that_agree_on_the_size_or_fit_clearly_worse_do_not_block_the_cho
         CadReplacementConfig(accept_max_size_spread=-0.1)
     with pytest.raises(ValueError):
         CadReplacementConfig(size_spread_ae_ratio=0.9)
+
+
+def test_a_scan_the_physical_check_puts_in_a_models_place_is_recorded_as_the_observed_mesh():
+    from cad_replacement.scene_model import ReplacedScene
+
+    def check(scene, alternatives):
+        scan = alternatives["box_2"].scan()  # what PhysicalCheck._fit_supports falls back to
+        assert scan is not None and scan.model.source == "observed" and scan.name == "box_2"
+        assert alternatives["box_2"].scan() is scan  # built once
+        objs = [scan if o.name == "box_2" else o for o in scene]
+        return ReplacedScene(scene.name, objs, scene.frame_id, scene.revision)
+
+    ents = _scene_entities()
+    replacer = CadReplacer(CadLibrary(seeds_per_class=3), CadReplacementConfig(workers=1), physical_check=check)
+    result = replacer.replace(build_contact_graph(ents), {e.id: e for e in ents})
+    rec = next(r for r in result.records if r.name == "box_2")
+    assert rec.kind == "observed_mesh" and rec.cad_id == "observed"
+    assert "no model of it has room" in rec.reason and "-> observed mesh" in rec.message
+    assert rec.scale == [1.0, 1.0, 1.0] and rec.joint_values == {}
+    assert result.scene.object("box_2").model.source == "observed"

@@ -283,3 +283,60 @@ def test_a_much_worse_fitting_support_alternative_is_not_taken_for_consistency()
     scene, alternatives, _board = _shelf_with_cup(None)
     paper(scene, alternatives)
     assert paper.last_report.support_switches == {}  # the paper's check has no such step
+
+
+class _WithScan(_Scored):
+    """Alternatives that also offer the object's scan, as ``replacer._RankedAlternatives`` does."""
+
+    def __init__(self, items, scores, chosen_score, scan):
+        super().__init__(items, scores, chosen_score)
+        self._scan = scan
+        self.asked = 0
+
+    def scan(self):
+        self.asked += 1
+        return self._scan
+
+
+def _scan_of(mesh, name: str = "shelf_1") -> PlacedObject:
+    from cad_replacement.replacer import observed_mesh_object
+    from recon_core.contact_graph import GraphNode
+    from recon_core.entity import Entity
+    from recon_core.geometry.box_fit import fit_gravity_box
+
+    node = GraphNode(1, name, "shelf", "object", box=fit_gravity_box(np.asarray(mesh.vertices)), movable=False)
+    obj = observed_mesh_object(node, Entity.from_mesh(1, name, "shelf", mesh), "floor", "fixed")
+    assert obj is not None
+    return obj
+
+
+@pytest.mark.parametrize("scan_holds", [True, False])
+def test_a_support_whose_models_all_lift_what_was_seen_inside_it_gives_way_to_its_scan(scan_holds: bool):
+    import trimesh
+
+    scene, alternatives, board = _shelf_with_cup(10.0)  # the one model that holds the cup fits 10x worse
+    seen = build_model("shelf", 3).mesh()  # the scan: boards where the camera saw them (0.34 m among them)
+    solid = trimesh.creation.box(seen.extents).apply_translation(seen.bounds.mean(axis=0))  # no inner level
+    alts = _WithScan(alternatives["shelf_1"], [10.0], 1.0, _scan_of(seen if scan_holds else solid))
+    check = PhysicalCheck()
+    fixed = check(scene, {"shelf_1": alts})
+    assert alts.asked == 1
+    cup_z = fixed.object("cup_1").pose[2, 3]
+    if scan_holds:
+        assert fixed.object("shelf_1").model.source == "observed"
+        before, after = check.last_report.support_switches["shelf_1"]
+        assert before > 0.1 and after < 0.02
+        assert cup_z == pytest.approx(board, abs=0.02)  # where it was seen, not a board up
+    else:
+        assert fixed.object("shelf_1").model.source != "observed" and check.last_report.support_switches == {}
+        assert abs(cup_z - board) > 0.1
+
+
+def test_a_child_a_few_centimetres_off_its_support_model_keeps_the_model():
+    scene, alternatives, board = _shelf_with_cup(10.0)
+    chosen = scene.object("shelf_1").model
+    nearest = min((s.height for s in chosen.features.support_surfaces), key=lambda h: abs(h - board))
+    scene.object("cup_1").pose[2, 3] = nearest + 0.05  # 5 cm off a board of the chosen model
+    alts = _WithScan(alternatives["shelf_1"], [10.0], 1.0, _scan_of(build_model("shelf", 3).mesh()))
+    fixed = PhysicalCheck()(scene, {"shelf_1": alts})
+    assert alts.asked == 0 and fixed.object("shelf_1").model is chosen
