@@ -47,11 +47,11 @@ MAX_ROUNDS = 10
 SUPPORT_MISMATCH_M = 0.02
 #: Alternatives of a support tried, and how much worse (score ratio) than the choice they may fit.
 SUPPORT_ALTERNATIVES = 3
+SUPPORT_SCORE_RATIO = 1.5
 #: A support model that would move a child this far (m) from where it was seen, with no alternative
 #: that holds it, gives way to the object's scan (``_scan_holds``): the pose tolerance of the paper's
 #: evaluation (10 cm), beyond which the child is no longer where the camera saw it.
 SCAN_FALLBACK_MISMATCH_M = 0.10
-SUPPORT_SCORE_RATIO = 1.5
 #: Clearance (m) kept between a footprint and the outline of an enclosed support surface ...
 CONTAINED_MARGIN = 0.005
 #: ... and the largest horizontal move (m) made to get it there: farther, the fit (or the graph) is
