@@ -195,7 +195,8 @@ def settle_observed(objects: Sequence[PlacedObject], *, drop: bool = True,
         return {}
     # every object's pieces and their bounds, only when some piece may be dropped (the bounds once per
     # piece: trimesh's cached ``bounds`` hashes the mesh at every read, 95k reads took 3 s on a 20-object scene)
-    dropping = drop and any(o.model.links[0].collisions for o in observed)
+    carried = {o.parent for o in objects if o.movable}
+    dropping = drop and any(o.model.links[0].collisions and (o.movable or o.name in carried) for o in observed)
     world = {o.name: _PlacedPieces(o) for o in objects} if dropping else {}
     bounds = {name: pieces.bounds for name, pieces in world.items()}
     changes: dict[str, dict[str, int]] = {}
@@ -204,7 +205,7 @@ def settle_observed(objects: Sequence[PlacedObject], *, drop: bool = True,
         shapes: list[CollisionShape] = list(link.collisions or ())
         kept = shapes
         dropped = 0
-        if drop and shapes:
+        if drop and shapes and (obj.movable or obj.name in carried):
             # a movable scan yields to everything but what rests on it; a fixed one (a cabinet, a table)
             # to the movable objects resting on it: the piece is their surface, which its mask took
             names = [o.name for o in objects if o.name != obj.name and o.parent != obj.name] if obj.movable \

@@ -210,7 +210,6 @@ class PhysicalCheck:
             if before <= SUPPORT_MISMATCH_M:
                 continue
             scores, best = getattr(alts, "scores", None), getattr(alts, "chosen_score", None)
-            kid_names = {k.name for k in kids}
             for i in range(min(len(alts), SUPPORT_ALTERNATIVES)):
                 if scores is not None and best is not None and scores[i] > SUPPORT_SCORE_RATIO * best:
                     break
@@ -219,45 +218,37 @@ class PhysicalCheck:
                                      parent_link=parent.parent_link, support=parent.support, movable=parent.movable,
                                      entity_id=parent.entity_id, joint_values=dict(alt.joint_values), scale=alt.scale,
                                      cad_id=alt.cad_id)
-                _rest_like(trial, parent)
-                after = support_mismatch(trial, kids)
-                if after > SUPPORT_MISMATCH_M:
-                    continue
-                trial_solids = ObjectSolids(trial, hulls)
-                blocked = any(
-                    trial_solids.overlaps(solids[n]) and penetration_between(trial_solids, solids[n])
-                    > self.max_penetration * (1.5 if n == parent.parent else 1.0)
-                    for n in solids if n != name and n not in kid_names)
-                if blocked:
-                    continue
-                objects[name], solids[name] = trial, trial_solids
-                switched[name] = (before, after)
-                break
-            if name not in switched and before > SCAN_FALLBACK_MISMATCH_M:
-                self._scan_holds(name, parent, kids, alts, objects, solids, hulls, switched, before)
+                held = self._holds(trial, parent, kids, solids, hulls)
+                if held is not None:
+                    objects[name], solids[name] = trial, held[1]
+                    switched[name] = (before, held[0])
+                    break
+            if name in switched or before <= SCAN_FALLBACK_MISMATCH_M:
+                continue
+            scan_of = getattr(alts, "scan", None)  # the object's scan, built only now
+            scan = scan_of() if callable(scan_of) else None
+            held = None if scan is None else self._holds(scan, parent, kids, solids, hulls)
+            if scan is not None and held is not None:
+                objects[name], solids[name] = scan, held[1]
+                switched[name] = (before, held[0])
         return switched
 
-    def _scan_holds(self, name: str, parent: PlacedObject, kids: Sequence[PlacedObject],
-                    alts: Sequence[PlacedObject], objects: dict[str, PlacedObject],
-                    solids: dict[str, ObjectSolids], hulls: bool,
-                    switched: dict[str, tuple[float, float]], before: float) -> None:
-        """Put the object's scan in its place when the scan holds its children and no model did."""
-        scan_of = getattr(alts, "scan", None)
-        scan = scan_of() if callable(scan_of) else None
-        if scan is None:
-            return
-        _rest_like(scan, parent)
-        after = support_mismatch(scan, kids)
+    def _holds(self, trial: PlacedObject, parent: PlacedObject, kids: Sequence[PlacedObject],
+               solids: dict[str, ObjectSolids], hulls: bool) -> tuple[float, ObjectSolids] | None:
+        """``trial`` (another candidate, or the scan) rested like ``parent``: its mismatch and solids when it
+        holds every child within ``SUPPORT_MISMATCH_M`` and collides with nothing but them (its own
+        support a little more), else None."""
+        _rest_like(trial, parent)
+        after = support_mismatch(trial, kids)
         if after > SUPPORT_MISMATCH_M:
-            return
-        scan_solids = ObjectSolids(scan, hulls)
+            return None
+        trial_solids = ObjectSolids(trial, hulls)
         kid_names = {k.name for k in kids}
-        if any(scan_solids.overlaps(solids[n]) and penetration_between(scan_solids, solids[n])
+        if any(trial_solids.overlaps(solids[n]) and penetration_between(trial_solids, solids[n])
                > self.max_penetration * (1.5 if n == parent.parent else 1.0)
-               for n in solids if n != name and n not in kid_names):
-            return
-        objects[name], solids[name] = scan, scan_solids
-        switched[name] = (before, after)
+               for n in solids if n != trial.name and n not in kid_names):
+            return None
+        return after, trial_solids
 
 
 def support_mismatch(parent: PlacedObject, kids: Sequence[PlacedObject]) -> float:

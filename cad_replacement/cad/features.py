@@ -15,6 +15,7 @@ reconstructed object meshes use these functions.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -25,7 +26,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from cad_replacement.cad.feature_types import ModelFeatures, SupportSurface
-from cad_replacement.cad.model import CadModel
+from cad_replacement.cad.model import CadModel, bounding_box_features
 from recon_core.geometry.plane import SUPPORT_NORMAL_COS, merge_planes
 from recon_core.geometry.plane_fit import PLANE_DISTANCE, extract_planes
 from recon_core.geometry.polygon import polygon_area
@@ -191,14 +192,14 @@ def scan_features(mesh: trimesh.Trimesh, *, seed: int = 0) -> ModelFeatures:
     10 x 10 cm of surface); those within ``SCAN_TOP_BAND`` of the top are the top. No planes: a scan
     is not matched against anything.
     """
+    box = bounding_box_features(mesh)
     if len(mesh.faces) == 0:
-        return ModelFeatures(box_center=np.zeros(3), box_size=np.zeros(3))
-    lo, hi = np.asarray(mesh.bounds[0], np.float64), np.asarray(mesh.bounds[1], np.float64)
+        return box
+    lo, hi = box.box_center - 0.5 * box.box_size, box.box_center + 0.5 * box.box_size
     top = SupportSurface(height=float(hi[2]), polygon=np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]],
                                                                 [lo[0], hi[1]]]))
     inner = [s for s in find_support_surfaces(mesh, seed=seed) if s.height < hi[2] - SCAN_TOP_BAND]
-    return ModelFeatures(box_center=0.5 * (lo + hi), box_size=hi - lo,
-                         support_surfaces=(top, *sorted(inner, key=lambda s: -s.height)))
+    return dataclasses.replace(box, support_surfaces=(top, *sorted(inner, key=lambda s: -s.height)))
 
 
 def mesh_features(

@@ -133,3 +133,15 @@ def test_a_fixed_scan_gives_up_the_pieces_its_mask_took_of_what_stands_on_it(tmp
     assert report.loaded and report.still_fraction == 1.0, report.displacement
     _book, _c, _a, kept = _book_on_a_bled_cabinet(tmp_path, drop=False)
     assert kept.still_fraction == 0.0, kept.displacement  # the bleed, kept, throws the book off
+
+
+def test_a_fixed_scan_with_nothing_on_it_keeps_its_pieces_beside_one_that_drops():
+    # the fridge beside the bled cabinet carries nothing: nothing of it is dropped, and no piece is looked up
+    fridge = _observed(5, "fridge_5", "fridge", trimesh.creation.box([0.6, 0.6, 1.6]).apply_translation(
+        [1.5, 0.0, 0.8]), False, parent="map")
+    chair = _observed(6, "chair_6", "chair", trimesh.creation.box([0.4, 0.4, 0.9]).apply_translation(
+        [1.0, 0.0, 0.45]), True, parent="map")
+    pieces = len(fridge.model.links[0].collisions or ())
+    changes = settle_observed([fridge, chair], patch=False)
+    assert "fridge_5" not in changes and len(fridge.model.links[0].collisions or ()) == pieces
+    assert settle_observed([fridge], patch=False) == {}  # alone: no piece of anything is built
