@@ -232,6 +232,9 @@ def run_pipeline(bag: Path, gt: Path, out: Path, spec: RunSpec, library: Any = N
         "false_classes": sorted(c.class_name for c in m.per_class.values() if c.num_gt == 0 and c.fp > 0),
         "ged_ratio": round(float(gs["ged"]["ratio"]), 4), "box_mAP": round(float(gs["box_map_refined"]["mAP"]), 4),
         "pose_success": objects.get("pose_success"), "ae_median_m": objects.get("ae_median"),
+        # per ground-truth class: placed objects, successes and the criteria missed (the report's
+        # "why mapped poses fail" table)
+        "pose_by_class": s.get("objects_by_class", {}),
         "cad_objects": cad_objects, "matched_objects": s.get("matched"),
         "observed_mesh_objects": sum(1 for r in result.records if r.kind == "observed_mesh"),
         "seen_objects": seen_objects,

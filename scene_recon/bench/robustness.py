@@ -213,7 +213,7 @@ def aggregate(rows: list[dict[str, Any]], gt_rows: list[dict[str, Any]]) -> dict
                 worst_scene[f] = {"scene": s, "mean": v}
         out["modes"][mode] = {"per_scene": per_scene, "overall": overall, "worst_scene_mean": worst_scene,
                               "worst_draw": {f: _worst_row(mine, k, hib) for f, (k, hib) in FIGURES.items()},
-                              "runs": len(mine)}
+                              "runs": len(mine), "pose_by_class": pose_by_class(mine)}
     by = {(r["scene"], r["draw"], r["mode"]): r for r in rows}
     for other in sorted({r["mode"] for r in rows} - {"full"}):
         paired = out["paired"].setdefault(f"full - {other}", {})
@@ -231,6 +231,18 @@ def aggregate(rows: list[dict[str, Any]], gt_rows: list[dict[str, Any]]) -> dict
                         (("pose_success", True), ("pose_recall", True), ("ae_median_m", False),
                          ("stillness", True))}}
     return out
+
+
+def pose_by_class(rows: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """The runs' per-class CAD pose counts (``pose_by_class`` of each row: objects, successes and the
+    criteria missed) summed: which classes the mapped pose success loses, and on which criterion."""
+    out: dict[str, dict[str, int]] = {}
+    for r in rows:
+        for cls, counts in (r.get("pose_by_class") or {}).items():
+            acc = out.setdefault(cls, {})
+            for k, v in counts.items():
+                acc[k] = acc.get(k, 0) + int(v)
+    return dict(sorted(out.items(), key=lambda kv: (kv[1].get("successes", 0) - kv[1].get("objects", 0), kv[0])))
 
 
 # ----------------------------------------------------------------------------------------------- running
@@ -481,6 +493,27 @@ def _table(results: dict[str, Any]) -> list[str]:
     return md
 
 
+def failure_table(results: dict[str, Any]) -> list[str]:
+    """Per variant and ground-truth class, over every run: CAD-placed objects, pose successes and how
+    many miss each pose-success criterion (one object can miss several), most failures first."""
+    from scene_recon.evaluation.cad_metrics import CRITERIA, SIZE_TOL, TRANSLATION_TOL, YAW_TOL_DEG
+
+    limits = {"translation": f"translation > {100 * TRANSLATION_TOL:.0f} cm", "yaw": f"yaw > {YAW_TOL_DEG:.0f} deg",
+              "size": f"size > {100 * SIZE_TOL:.0f} %"}
+    md: list[str] = []
+    for mode, m in results["summary"]["modes"].items():
+        counts = m.get("pose_by_class") or {}
+        if not counts:
+            continue
+        md += ["", f"Why mapped CAD poses fail ({mode}, every scene and draw):", "",
+               "| class | placed | correct | " + " | ".join(limits[c] for c in CRITERIA) + " |",
+               "|---|---|---|" + "---|" * len(CRITERIA)]
+        for cls, c in counts.items():
+            md.append(f"| {cls} | {c.get('objects', 0)} | {c.get('successes', 0)} | "
+                      + " | ".join(str(c.get(k, 0)) for k in CRITERIA) + " |")
+    return md
+
+
 def plot_draws(results: dict[str, Any], path: Path) -> Path | None:
     """Per scene, each draw's PQ and mapped pose success, full against baseline: the spread at a glance."""
     try:
@@ -541,7 +574,7 @@ def write_protocol_report(results: dict[str, Any], out: Path) -> dict[str, Path]
           f"CPU {results['cpu_s']:.0f} s on {results['machine']}.", "",
           "Over every scene and draw: mean ± standard deviation (worst draw).", "", *headline_table(results), "",
           "Per scene: mean ± standard deviation over the draws (worst draw). Stage 4 uses the unseen library.", "",
-          *_table(results), "", *[f"- {line}" for line in summary_lines(results)], ""]
+          *_table(results), *failure_table(results), "", *[f"- {line}" for line in summary_lines(results)], ""]
     if plot:
         md += [f"![per-draw figures]({plot.name})", ""]
     write_text_atomic(out / "report.md", "\n".join(md) + "\n")

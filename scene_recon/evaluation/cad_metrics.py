@@ -222,6 +222,41 @@ def evaluate_object(
     )
 
 
+#: The pose-success criteria ``failed_criteria`` names, in the order the report lists them.
+CRITERIA = ("translation", "yaw", "size")
+
+
+def failed_criteria(e: ObjectEval) -> list[str]:
+    """Which of the pose-success thresholds one object misses (``CRITERIA``; empty: a success). An
+    object without a chosen model misses all three (its errors are infinite)."""
+    out = []
+    if not e.translation_error <= TRANSLATION_TOL:
+        out.append("translation")
+    if not e.yaw_error_deg <= YAW_TOL_DEG:
+        out.append("yaw")
+    if not e.size_error <= SIZE_TOL:
+        out.append("size")
+    return out
+
+
+def failures_by_class(evals: list[ObjectEval], classes: list[str] | None = None) -> dict[str, dict[str, int]]:
+    """Per class (``classes``, one per object: the ground truth's; default: each object's own):
+    objects evaluated, pose successes, and how many miss each criterion (an object can miss several).
+    What a pose-success figure is made of: whether a class fails on where it stands, how it is turned
+    or how large it is (issue 22's failure analysis, made routine)."""
+    names = classes if classes is not None else [e.class_name for e in evals]
+    if len(names) != len(evals):
+        raise ValueError(f"failures_by_class: {len(evals)} objects but {len(names)} class names")
+    out: dict[str, dict[str, int]] = {}
+    for e, name in zip(evals, names, strict=True):
+        row = out.setdefault(name, {"objects": 0, "successes": 0, **{c: 0 for c in CRITERIA}})
+        row["objects"] += 1
+        row["successes"] += int(e.pose_success)
+        for c in failed_criteria(e):
+            row[c] += 1
+    return dict(sorted(out.items()))
+
+
 def summarize(evals: list[ObjectEval]) -> dict[str, Any]:
     """Aggregate figures over objects (rates in [0, 1], AE in metres, times in seconds)."""
     if not evals:
@@ -247,10 +282,13 @@ def summarize(evals: list[ObjectEval]) -> dict[str, Any]:
 
 
 __all__ = [
+    "CRITERIA",
     "ObjectEval",
     "class_symmetry",
     "evaluate_object",
     "extents_along",
+    "failed_criteria",
+    "failures_by_class",
     "rotational_symmetry",
     "stronger_symmetry",
     "summarize",

@@ -30,7 +30,7 @@ from cad_replacement.scene_model import MAP_ROOT, PlacedObject, ReplacedScene
 from recon_core.contact_graph import ContactGraph, SupportEdge
 from recon_core.errors import InputError
 from recon_core.geometry.box import GravityBox
-from scene_recon.evaluation.cad_metrics import evaluate_object, summarize
+from scene_recon.evaluation.cad_metrics import evaluate_object, failures_by_class, summarize
 from scene_recon.synthetic.scene import GroundTruthScene
 
 #: A replaced object further than this (m, box centres) from a ground-truth object is not its match.
@@ -165,6 +165,7 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
                 cost[i, j] = d
     rows, cols = linear_sum_assignment(cost) if cost.size else (np.zeros(0, int), np.zeros(0, int))
     evals = []
+    gt_classes = []
     matched = 0
     for i, j in zip(rows, cols, strict=True):
         if cost[i, j] >= 1e6:
@@ -181,6 +182,7 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
         gt_model = ground_truth.model_of(gt)
         assert gt_model is not None
         evals.append(evaluate_object(rep, gt_model, gt.pose, gt.joint_values))  # type: ignore[arg-type]
+        gt_classes.append(gt.class_name)
         matched += 1
     # stand-ins of observed meshes rebuilt from a folder (see scene_from_folder) have no geometry to measure
     measured = [o for o in scene if not (o.cad_id.startswith("observed") and o.model.source == "box")]
@@ -198,6 +200,7 @@ def evaluate_scene(scene: ReplacedScene, records: dict[str, dict[str, Any]], gro
     out: dict[str, Any] = {
         "ground_truth_objects": len(gt_objects), "replaced_objects": len(placed), "matched": matched,
         "objects": summarize(evals), "per_object": [_object_figures(e) for e in evals],
+        "objects_by_class": failures_by_class(evals, gt_classes),
         "max_interpenetration_m": worst,
         "interpenetrating_pairs_over_1cm": sum(1 for _a, _b, d in penetrations if d > 0.01),
         "support_gap_median_m": float(np.median(gaps)) if gaps else None,

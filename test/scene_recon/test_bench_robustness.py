@@ -60,6 +60,20 @@ def test_aggregate_reports_spread_worst_draw_worst_scene_and_paired_gains():
     assert any("full - baseline PQ" in line and "+11.75" in line for line in lines)
 
 
+def test_per_class_pose_counts_are_summed_over_runs_and_listed_worst_first():
+    rows = [{**_row("a", 0, "full", 90, 0.5, 0.004),
+             "pose_by_class": {"book": {"objects": 2, "successes": 0, "translation": 0, "yaw": 1, "size": 2},
+                               "table": {"objects": 1, "successes": 1, "translation": 0, "yaw": 0, "size": 0}}},
+            {**_row("b", 0, "full", 90, 0.5, 0.004),
+             "pose_by_class": {"table": {"objects": 1, "successes": 0, "translation": 1, "yaw": 0, "size": 1}}},
+            _row("b", 1, "full", 90, None, 0.004)]  # a run without CAD objects adds nothing
+    counts = aggregate(rows, [])["modes"]["full"]["pose_by_class"]
+    assert list(counts) == ["book", "table"]  # two failures before one
+    assert counts["table"] == {"objects": 2, "successes": 1, "translation": 1, "yaw": 0, "size": 1}
+    md = robustness.failure_table({"summary": aggregate(rows, [])})
+    assert "| book | 2 | 0 | 0 | 1 | 2 |" in md and "| table | 2 | 1 | 1 | 0 | 1 |" in md
+
+
 def test_protocol_specs_validate_their_scenes_draws_and_variants():
     quick = protocol_spec("quick")
     assert len(quick.draws) >= 3 and len(quick.scenes) >= 2
@@ -132,6 +146,19 @@ def test_a_tiny_protocol_end_to_end_writes_strict_json_a_table_and_a_plot(tmp_pa
     assert all(math.isfinite(r["map_ms_per_frame"]) and r["map_ms_per_frame"] > 0 for r in data["rows"])
     report = files["markdown"].read_text(encoding="utf-8")
     assert "| gen-tiny | full |" in report and "| gen-tiny | baseline |" in report
+    # the per-class failure counts agree with the runs' own pose success
+    for mode in ("full", "baseline"):
+        counts = data["summary"]["modes"][mode]["pose_by_class"]
+        placed = sum(c["objects"] for c in counts.values())
+        correct = sum(c["successes"] for c in counts.values())
+        runs = [r for r in data["rows"] if r["mode"] == mode]
+        assert correct == sum(round(r["pose_success"] * r["matched_objects"]) for r in runs if r["matched_objects"])
+        assert placed == sum(r["matched_objects"] or 0 for r in runs)
+        assert placed > 0  # the tiny scene places CAD models in both variants
+        for c in counts.values():
+            assert all(c[k] <= c["objects"] - c["successes"] for k in ("translation", "yaw", "size"))
+            assert c["objects"] == c["successes"] or max(c["translation"], c["yaw"], c["size"]) > 0
+    assert "Why mapped CAD poses fail (full" in report and "| size > 15 % |" in report
     assert files["plot"].stat().st_size > 1000
     assert not (tmp_path / "out" / "work").exists()  # per-run folders are removed
 
