@@ -928,9 +928,9 @@ class AlignmentProblem:
             ny /= np.maximum(np.linalg.norm(ny, axis=1, keepdims=True), EPS)
             if self.visible_mask is None:  # fixed for one fit: keeps the residual vector's meaning
                 area = self.geom.sample_area * self.pool_count / max(len(ny), 1) * float(np.prod(s)) ** (2 / 3)
-                # model surface in space no camera observed is unseen, not missing (``alignment_error``)
+                # model surface whose front no camera observed is unseen, not missing (``alignment_error``)
                 self.visible_mask = visible_samples(
-                    ny, prep.obs.observed_at(y), prep.bin_area, area, self.cfg.visible_min_coverage,
+                    ny, prep.obs.observed_in_front(y, ny), prep.bin_area, area, self.cfg.visible_min_coverage,
                     samples_map=y if self.face_reach is not None else None, face_area=prep.face_area,
                     face_reach=self.face_reach or 1,
                 )
@@ -1197,8 +1197,9 @@ def alignment_error(
     # Model surface in space no camera observed (an unseen far half, behind the object) is not missing
     # data: nothing says it is absent. It costs at most ``unknown_surface_m`` each, not its distance
     # to the observed surface, so of two models that explain the observation alike the one that puts
-    # less surface where nobody looked still wins (``ObjectObservation.observed_space``).
-    observed = prepared.obs.observed_at(samples_map[in_view])
+    # less surface where nobody looked still wins (``ObjectObservation.observed_space``). A sample is
+    # judged by the space in front of it (``ObjectObservation.observed_in_front``).
+    observed = prepared.obs.observed_in_front(samples_map[in_view], normals_map[in_view])
     known_share = float(np.mean(observed)) if len(observed) else float("nan")
     d_obs = scene.compute_distance(o3c.Tensor(pts.astype(np.float32))).numpy().astype(np.float64)
     d_view = surfel_distance(prepared, samples_map[in_view], normals_map[in_view])

@@ -66,6 +66,21 @@ def test_a_half_seen_table_keeps_its_size_only_where_the_grid_says_its_far_half_
         assert extent_x < 0.8 * size[0]  # shrunk onto the seen part: what the grid fixes
 
 
+def test_the_space_in_front_of_a_surface_decides_not_its_own_cell() -> None:
+    grid = ObservedSpace.unknown([-1.0, -1.0, 0.0], [1.0, 1.0, 1.0], 20)
+    observed = np.abs(grid.centres()[:, 2] - 0.55) < 1e-6  # one row of 10 cm cells, z 0.5-0.6, observed
+    pts = np.random.default_rng(0).uniform(-0.1, 0.1, (20, 3)) + np.array([0.0, 0.0, 0.4])
+    obs = ObjectObservation(1, "t", "table", pts, observed_space=ObservedSpace(
+        grid.origin, grid.cell, observed.reshape(grid.shape)))
+    top = np.array([[0.0, 0.0, 0.47], [0.0, 0.0, 0.47]])
+    up, down = np.array([[0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, -1.0]])
+    assert not obs.observed_at(top)[0]  # the surface's own cell (z 0.4-0.5) is unknown
+    assert obs.observed_in_front(top[:1], up)[0]  # the cell above it was seen: a view would have seen it
+    assert not obs.observed_in_front(top[:1], down)[0]
+    assert obs.observed_in_front(top, np.zeros((2, 3))).tolist() == [False, False]  # no normal: its own cell
+    assert ObjectObservation(1, "t", "table", pts).observed_in_front(top, np.r_[up, up]).all()  # no grid
+
+
 def test_room_stops_at_observed_space_and_at_a_wall() -> None:
     grid = ObservedSpace.unknown([-1.0, -1.0, 0.0], [1.0, 1.0, 1.0], 20)
     cell = grid.cell
