@@ -190,7 +190,7 @@ def evaluate_object(
         est_size = np.r_[np.sort(est_size[:2]), est_size[2]]
         gt_size = np.r_[np.sort(gt_size[:2]), gt_size[2]]
     size_err = float(np.max(np.abs(est_size - gt_size) / np.maximum(gt_size, 1e-6)))
-    success = t_err <= TRANSLATION_TOL and np.degrees(yaw_err) <= YAW_TOL_DEG and size_err <= SIZE_TOL
+    success = not _missed(t_err, float(np.degrees(yaw_err)), size_err)
     flip = None if sym in (ROUND, 2, 4) else bool(np.degrees(raw) > 90.0)
     # Articulation.
     scaled = rep.model.scaled(ch.scale)
@@ -226,17 +226,17 @@ def evaluate_object(
 CRITERIA = ("translation", "yaw", "size")
 
 
+def _missed(translation_error: float, yaw_error_deg: float, size_error: float) -> list[str]:
+    """The pose-success thresholds these errors miss, in ``CRITERIA`` order (NaN misses)."""
+    errors = {"translation": (translation_error, TRANSLATION_TOL), "yaw": (yaw_error_deg, YAW_TOL_DEG),
+              "size": (size_error, SIZE_TOL)}
+    return [c for c in CRITERIA if not errors[c][0] <= errors[c][1]]
+
+
 def failed_criteria(e: ObjectEval) -> list[str]:
     """Which of the pose-success thresholds one object misses (``CRITERIA``; empty: a success). An
     object without a chosen model misses all three (its errors are infinite)."""
-    out = []
-    if not e.translation_error <= TRANSLATION_TOL:
-        out.append("translation")
-    if not e.yaw_error_deg <= YAW_TOL_DEG:
-        out.append("yaw")
-    if not e.size_error <= SIZE_TOL:
-        out.append("size")
-    return out
+    return _missed(e.translation_error, e.yaw_error_deg, e.size_error)
 
 
 def failures_by_class(evals: list[ObjectEval], classes: list[str] | None = None) -> dict[str, dict[str, int]]:
