@@ -270,8 +270,11 @@ class FreeSpaceConfig(Settings):
     #: At most this many views are kept; beyond, every other one is dropped (spread over the recording).
     max_views: int = setting(96, min=1, doc="label-frame views kept for the free-space test")
     #: A reading within tolerance_voxels * voxel + tolerance_per_m * depth of a vertex saw it; farther
-    #: readings looked through it.
-    tolerance_voxels: float = setting(1.0, min=0.0, doc="seen/looked-through tolerance, in room voxels")
+    #: readings looked through it. The voxel is that of the surface tested: the room's, or the fine
+    #: surface's for small things (`fine_surface.voxel_size_m`), whose 2 cm truncation band the room's
+    #: 2 cm took for measured surface.
+    tolerance_voxels: float = setting(1.0, min=0.0, doc="seen/looked-through tolerance, in voxels of the "
+                                      "surface tested (the room's, or the fine surface's)")
     tolerance_per_m: float = setting(0.01, min=0.0, doc="seen/looked-through tolerance added per metre of depth")
     #: A vertex is fringe when at least this many views looked through it ...
     min_through: int = setting(2, min=1, doc="views that must look through a vertex to drop it")

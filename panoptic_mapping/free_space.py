@@ -117,16 +117,22 @@ class FreeSpaceViews:
             self.intrinsics, self.poses = self.intrinsics[::2], self.poses[::2]
             self.stride *= 2
 
-    def count(self, points: np.ndarray) -> SeenThrough:
+    def count(self, points: np.ndarray, voxel_size_m: float | None = None) -> SeenThrough:
         """For each map point, how many stored views measured it within the tolerance (seen) and how
         many measured something farther along its ray (looked through); views where it is behind a
-        nearer reading, outside the image or without a reading count as neither."""
+        nearer reading, outside the image or without a reading count as neither.
+
+        ``voxel_size_m``: the grid the points' surface was extracted from (None: the room's). The
+        tolerance's fixed part is ``tolerance_voxels`` of it: the 5 mm surface of small things
+        (`fine_surface`) closes a face seen from one side 2 cm (its truncation band) behind it, which a
+        2 cm tolerance took for measured surface."""
         pts = np.asarray(points, np.float64).reshape(-1, 3)
         seen = np.zeros(len(pts), np.int32)
         through = np.zeros(len(pts), np.int32)
         if len(pts) == 0:
             return SeenThrough(seen, through)
-        base_tol = float(self.cfg.tolerance_voxels) * self.voxel_size_m
+        voxel = self.voxel_size_m if voxel_size_m is None else float(voxel_size_m)
+        base_tol = float(self.cfg.tolerance_voxels) * voxel
         rel_tol = float(self.cfg.tolerance_per_m)
         for depth_mm, near_mm, k, pose in zip(self.depth_mm, self.near_mm, self.intrinsics, self.poses, strict=True):
             idx, u, v, zi = _in_image(pts, k, pose, depth_mm.shape)
@@ -172,12 +178,14 @@ class FreeSpaceViews:
         seen = self.observed(grid.centres(), 0.5 * grid.cell, max(1, int(self.cfg.min_seen)))
         return ObservedSpace(grid.origin, grid.cell, seen.reshape(grid.shape))
 
-    def carved(self, points: np.ndarray) -> np.ndarray:
-        """Boolean per point: measured by too few views or looked through (`SeenThrough.carved`, the config)."""
+    def carved(self, points: np.ndarray, voxel_size_m: float | None = None) -> np.ndarray:
+        """Boolean per point: measured by too few views or looked through (`SeenThrough.carved`, the config);
+        ``voxel_size_m`` as in `count`."""
         if not self.depth_mm or len(points) == 0:
             return np.zeros(len(points), bool)
         cfg = self.cfg
-        return self.count(points).carved(int(cfg.min_through), float(cfg.through_ratio), int(cfg.min_seen))
+        counts = self.count(points, voxel_size_m)
+        return counts.carved(int(cfg.min_through), float(cfg.through_ratio), int(cfg.min_seen))
 
     # ------------------------------------------------------------------ persistence
     def state(self) -> dict[str, np.ndarray]:
