@@ -117,22 +117,22 @@ class FreeSpaceViews:
             self.intrinsics, self.poses = self.intrinsics[::2], self.poses[::2]
             self.stride *= 2
 
-    def count(self, points: np.ndarray, voxel_size_m: float | None = None) -> SeenThrough:
+    def count(self, points: np.ndarray, base_tolerance_m: float | None = None) -> SeenThrough:
         """For each map point, how many stored views measured it within the tolerance (seen) and how
         many measured something farther along its ray (looked through); views where it is behind a
         nearer reading, outside the image or without a reading count as neither.
 
-        ``voxel_size_m``: the grid the points' surface was extracted from (None: the room's). The
-        tolerance's fixed part is ``tolerance_voxels`` of it: the 5 mm surface of small things
-        (`fine_surface`) closes a face seen from one side 2 cm (its truncation band) behind it, which a
-        2 cm tolerance took for measured surface."""
+        ``base_tolerance_m``: the tolerance's fixed part (None: ``tolerance_voxels`` room voxels). The
+        5 mm surface of small things (`fine_surface`) closes a face seen from one side 2 cm (its
+        truncation band) behind it, which the room's 2 cm took for measured surface
+        (``FreeSpaceConfig.fine_tolerance_m``)."""
         pts = np.asarray(points, np.float64).reshape(-1, 3)
         seen = np.zeros(len(pts), np.int32)
         through = np.zeros(len(pts), np.int32)
         if len(pts) == 0:
             return SeenThrough(seen, through)
-        voxel = self.voxel_size_m if voxel_size_m is None else float(voxel_size_m)
-        base_tol = float(self.cfg.tolerance_voxels) * voxel
+        base_tol = float(self.cfg.tolerance_voxels) * self.voxel_size_m if base_tolerance_m is None \
+            else float(base_tolerance_m)
         rel_tol = float(self.cfg.tolerance_per_m)
         for depth_mm, near_mm, k, pose in zip(self.depth_mm, self.near_mm, self.intrinsics, self.poses, strict=True):
             idx, u, v, zi = _in_image(pts, k, pose, depth_mm.shape)
@@ -178,13 +178,13 @@ class FreeSpaceViews:
         seen = self.observed(grid.centres(), 0.5 * grid.cell, max(1, int(self.cfg.min_seen)))
         return ObservedSpace(grid.origin, grid.cell, seen.reshape(grid.shape))
 
-    def carved(self, points: np.ndarray, voxel_size_m: float | None = None) -> np.ndarray:
+    def carved(self, points: np.ndarray, base_tolerance_m: float | None = None) -> np.ndarray:
         """Boolean per point: measured by too few views or looked through (`SeenThrough.carved`, the config);
-        ``voxel_size_m`` as in `count`."""
+        ``base_tolerance_m`` as in `count`."""
         if not self.depth_mm or len(points) == 0:
             return np.zeros(len(points), bool)
         cfg = self.cfg
-        counts = self.count(points, voxel_size_m)
+        counts = self.count(points, base_tolerance_m)
         return counts.carved(int(cfg.min_through), float(cfg.through_ratio), int(cfg.min_seen))
 
     # ------------------------------------------------------------------ persistence

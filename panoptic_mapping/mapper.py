@@ -718,10 +718,10 @@ class PanopticMapper:
             owner[rest] = np.where(nearest >= 0, ent_v[np.maximum(nearest, 0)], 0)
         fit_core = core
         if self.free_space is not None and self.config.free_space.enabled and len(self.free_space):
-            # unmeasured: fringe, as on the coarse mesh, with the tolerance of the fine grid (`FreeSpaceViews.count`)
+            # unmeasured: fringe, as on the coarse mesh, within the fine surface's tolerance (`fine_tolerance_m`)
             owned = np.flatnonzero(core & np.isin(owner, [e.id for e in ents if self._carved_class(e.class_id)]))
             fit_core = core.copy()
-            fit_core[owned[self.free_space.carved(fv[owned], cfg.voxel_size_m)]] = False
+            fit_core[owned[self.free_space.carved(fv[owned], self.config.free_space.fine_tolerance_m)]] = False
         gap = self.config.extraction.detached_gap_m
         of = owner[ff]
         same = (of[:, 0] == of[:, 1]) & (of[:, 1] == of[:, 2]) & (of[:, 0] > 0)

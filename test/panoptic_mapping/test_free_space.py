@@ -65,20 +65,21 @@ def test_a_point_measured_in_fewer_than_min_seen_views_is_carved():
     assert not views.carved(on_wall)[0] and views.carved(hidden)[0]  # behind the plate: never measured
 
 
-def test_a_fine_surface_is_measured_at_its_own_resolution():
-    """The tolerance's fixed part is in voxels of the surface tested: 2 cm behind the plate (where the 5 mm
-    fine surface's truncation band closes a face seen from one side) is within the room's 2 cm + 1 cm/m,
-    so a room vertex there counts as measured, but a fine vertex there does not (5 mm + 1 cm/m); a fine
-    vertex on the plate still does."""
+def test_the_fine_surface_has_a_tolerance_of_its_own():
+    """2.5 cm behind the plate (where the 5 mm fine surface's truncation band closes a face seen from one side)
+    is within the room's 2 cm + 1 cm/m, so a room vertex there counts as measured; with the fine surface's
+    fixed part (1 cm) it does not, and a fine vertex on the plate still does."""
     views = _views()
+    fine = FreeSpaceConfig().fine_tolerance_m
+    assert fine == pytest.approx(0.01)
     views.add(_wall_with_plate(), K, np.eye(4))
-    behind, on = np.array([[-0.3, 0.0, 1.02]]), np.array([[-0.3, 0.0, 1.004]])
+    behind, on = np.array([[-0.3, 0.0, 1.025]]), np.array([[-0.3, 0.0, 1.006]])
     assert views.count(behind).seen[0] == 1
-    fine = views.count(behind, voxel_size_m=0.005)
-    assert fine.seen[0] == 0 and fine.through[0] == 0  # hidden, not looked through
-    assert views.count(on, voxel_size_m=0.005).seen[0] == 1
+    counted = views.count(behind, base_tolerance_m=fine)
+    assert counted.seen[0] == 0 and counted.through[0] == 0  # hidden, not looked through
+    assert views.count(on, base_tolerance_m=fine).seen[0] == 1
     views.add(_wall_with_plate(), K, np.eye(4))
-    assert not views.carved(behind)[0] and views.carved(behind, voxel_size_m=0.005)[0]
+    assert not views.carved(behind)[0] and views.carved(behind, base_tolerance_m=fine)[0]
 
 
 def test_a_silhouette_edge_is_not_looked_through():
