@@ -207,6 +207,27 @@ def test_with_the_fine_surface_the_books_core_is_its_true_thickness(book_map):
     assert np.percentile(coarse_core[:, 0], 99) > BOOK_BACK_X + 0.015  # the 2 cm grid alone: centimetres behind
 
 
+def test_the_mapper_tests_the_fine_surface_with_its_own_tolerance(monkeypatch):
+    """Extraction tests the room's surface with the room's tolerance and the small things' fine surface with
+    `free_space.fine_tolerance_m`; a looser one keeps more of the fine book's surface as core."""
+    mapper = _map_book(fine=True)
+    calls: list[float | None] = []
+    carved = FreeSpaceViews.carved
+
+    def spy(self, points, base_tolerance_m=None):
+        calls.append(base_tolerance_m)
+        return carved(self, points, base_tolerance_m)
+
+    monkeypatch.setattr(FreeSpaceViews, "carved", spy)
+    mapper.config.free_space.fine_tolerance_m = 0.0
+    _, strict = _book(mapper)
+    assert calls == [None, 0.0]
+    mapper.config.free_space.fine_tolerance_m = 0.05
+    _, loose = _book(mapper)
+    assert calls[2:] == [None, 0.05]
+    assert len(loose) > len(strict)
+
+
 def test_observed_is_what_views_looked_at_up_to_their_readings():
     views = _views(FreeSpaceConfig(enabled=True, min_seen=2))
     views.add(_wall_with_plate(), K, np.eye(4))
