@@ -279,6 +279,13 @@ class FreeSpaceConfig(Settings):
     #: but at 5 mm the real kitchen's cup (stride 1) lost the surface pose and depth error put beyond it
     #: and fell to its scan (docs/STAGE2_MAPPING.md).
     fine_tolerance_m: float = setting(0.01, min=0.0, doc="fixed part of the seen tolerance for the fine surface (m)")
+    #: A fine-surface vertex measured by fewer than this share of the median number of views that measured
+    #: its thing's fine surface is fringe too: the shadow of the truncation band past a far edge no camera
+    #: saw (a lying book's top closed 1.6-4.5 cm past its edge, measured by 0-3 views where the rest of it
+    #: was by 14). 0 disables (docs/STAGE2_MAPPING.md).
+    fine_min_seen_share: float = setting(0.25, min=0.0, max=1.0,
+                                         doc="fine vertices measured by fewer than this share of their thing's "
+                                         "median views are fringe (0: off)")
     tolerance_per_m: float = setting(0.01, min=0.0, doc="seen/looked-through tolerance added per metre of depth")
     #: A vertex is fringe when at least this many views looked through it ...
     min_through: int = setting(2, min=1, doc="views that must look through a vertex to drop it")

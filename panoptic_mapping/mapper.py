@@ -718,10 +718,13 @@ class PanopticMapper:
             owner[rest] = np.where(nearest >= 0, ent_v[np.maximum(nearest, 0)], 0)
         fit_core = core
         if self.free_space is not None and self.config.free_space.enabled and len(self.free_space):
-            # unmeasured: fringe, as on the coarse mesh, within the fine surface's tolerance (`fine_tolerance_m`)
+            # unmeasured: fringe, as on the coarse mesh, within the fine surface's tolerance (`fine_tolerance_m`),
+            # and measured by far fewer views than the rest of its thing (`fine_min_seen_share`)
             owned = np.flatnonzero(core & np.isin(owner, [e.id for e in ents if self._carved_class(e.class_id)]))
             fit_core = core.copy()
-            fit_core[owned[self.free_space.carved(fv[owned], self.config.free_space.fine_tolerance_m)]] = False
+            free = self.config.free_space
+            fit_core[owned[self.free_space.carved(fv[owned], free.fine_tolerance_m, owner[owned],
+                                                  free.fine_min_seen_share)]] = False
         gap = self.config.extraction.detached_gap_m
         of = owner[ff]
         same = (of[:, 0] == of[:, 1]) & (of[:, 1] == of[:, 2]) & (of[:, 0] > 0)

@@ -207,21 +207,42 @@ def test_with_the_fine_surface_the_books_core_is_its_true_thickness(book_map):
     assert np.percentile(coarse_core[:, 0], 99) > BOOK_BACK_X + 0.015  # the 2 cm grid alone: centimetres behind
 
 
+def test_a_point_measured_by_few_of_its_things_views_is_carved_with_a_share():
+    """Ten views measure a thing's points on the plate; only two of them measure its point on the wall (the
+    other eight stand where a nearer surface hides it): enough for `min_seen` (2), not for a quarter of the
+    thing's median (10). Another thing's point measured twice, with a median of two, stays."""
+    views = _views(FreeSpaceConfig(enabled=True, min_seen=2))
+    for _ in range(2):
+        views.add(_wall_with_plate(), K, np.eye(4))
+    for _ in range(8):
+        views.add(np.full((80, 100), 1.0, np.float32), K, np.eye(4))  # a plate over the whole image
+    plate = [[-0.3, 0.0, 1.0], [-0.25, 0.05, 1.0], [-0.35, -0.05, 1.0], [-0.2, 0.1, 1.0]]
+    pts = np.array([*plate, [0.3, 0.0, 2.0], [0.35, 0.05, 2.0]])
+    owner = np.array([7, 7, 7, 7, 7, 9])
+    assert views.count(pts).seen.tolist() == [10, 10, 10, 10, 2, 2]
+    assert not views.carved(pts).any()
+    assert not views.carved(pts, owner=owner).any()  # no share: the absolute rule alone
+    assert views.carved(pts, owner=owner, min_seen_share=0.25).tolist() == [False] * 4 + [True, False]
+
+
 def test_the_mapper_tests_the_fine_surface_with_its_own_tolerance(monkeypatch):
     """Extraction tests the room's surface with the room's tolerance and the small things' fine surface with
     `free_space.fine_tolerance_m`; a looser one keeps more of the fine book's surface as core."""
     mapper = _map_book(fine=True)
     calls: list[float | None] = []
+    shares: list[float] = []
     carved = FreeSpaceViews.carved
 
-    def spy(self, points, base_tolerance_m=None):
+    def spy(self, points, base_tolerance_m=None, owner=None, min_seen_share=0.0):
         calls.append(base_tolerance_m)
-        return carved(self, points, base_tolerance_m)
+        shares.append(min_seen_share if owner is not None else -1.0)
+        return carved(self, points, base_tolerance_m, owner, min_seen_share)
 
     monkeypatch.setattr(FreeSpaceViews, "carved", spy)
     mapper.config.free_space.fine_tolerance_m = 0.0
     _, strict = _book(mapper)
     assert calls == [None, 0.0]
+    assert shares == [-1.0, mapper.config.free_space.fine_min_seen_share]  # the share for the fine surface only
     mapper.config.free_space.fine_tolerance_m = 0.05
     _, loose = _book(mapper)
     assert calls[2:] == [None, 0.05]
