@@ -187,7 +187,7 @@ class FreeSpaceViews:
         With ``owner`` (the thing each point belongs to) and ``min_seen_share`` > 0, also the points measured
         by fewer than that share of the median number of views that measured their thing's points: the
         truncation band's shadow past an edge no camera saw. A book lying on a cabinet, every camera on one
-        side, had its top closed 1.6-4.5 cm past its far edge, measured there by 0-3 views where the rest of
+        side, had its top closed 1.6-4.5 cm past its far edge, measured there by 1-3 views where the rest of
         it was by a median 14, enough for the absolute `min_seen` (2) but not for its share of the object."""
         if not self.depth_mm or len(points) == 0:
             return np.zeros(len(points), bool)
