@@ -281,7 +281,7 @@ class FreeSpaceConfig(Settings):
     fine_tolerance_m: float = setting(0.01, min=0.0, doc="fixed part of the seen tolerance for the fine surface (m)")
     #: A fine-surface vertex measured by fewer than this share of the median number of views that measured
     #: its thing's fine surface is fringe too: the shadow of the truncation band past a far edge no camera
-    #: saw (a lying book's top closed 1.6-4.5 cm past its edge, measured by 0-3 views where the rest of it
+    #: saw (a lying book's top closed 1.6-4.5 cm past its edge, measured by 1-3 views where the rest of it
     #: was by 14). 0 disables (docs/STAGE2_MAPPING.md).
     fine_min_seen_share: float = setting(0.25, min=0.0, max=1.0,
                                          doc="fine vertices measured by fewer than this share of their thing's "
