@@ -274,15 +274,16 @@ class FreeSpaceConfig(Settings):
     tolerance_voxels: float = setting(1.0, min=0.0, doc="seen/looked-through tolerance, in room voxels")
     #: The fixed part of that tolerance for the fine surface of small things (`fine_surface`), in place of
     #: the room's voxels: its 5 mm grid closes a face seen from one side 2 cm (the truncation band) behind
-    #: it, and the room's 2 cm took that for measured surface. 1 cm: over 23 saved maps of the robustness
-    #: protocol 5 mm and 1 cm both placed more CAD models right (mapped pose success 69.6 -> 71.8 / 70.6 %),
-    #: but at 5 mm the real kitchen's cup (stride 1) lost the surface pose and depth error put beyond it
-    #: and fell to its scan (docs/STAGE2_MAPPING.md).
+    #: it, and the room's 2 cm took that for measured surface. 1 cm: in the robustness protocol (8 scenes x
+    #: 3 draws) 5 mm and 1 cm both placed more CAD models right (mapped pose success 69.3 ± 20.8 -> 71.4 ±
+    #: 22.4 / 70.4 ± 22.0 %, worst draw 20.0 in all three), but at 5 mm the real kitchen's cup (stride 1) lost
+    #: the surface pose and depth error put beyond it and fell to its scan (docs/STAGE2_MAPPING.md).
     fine_tolerance_m: float = setting(0.01, min=0.0, doc="fixed part of the seen tolerance for the fine surface (m)")
     #: A fine-surface vertex measured by fewer than this share of the median number of views that measured
     #: its thing's fine surface is fringe too: the shadow of the truncation band past a far edge no camera
     #: saw (a lying book's top closed 1.6-4.5 cm past its edge, measured by 1-3 views where the rest of it
-    #: was by 14). 0 disables (docs/STAGE2_MAPPING.md).
+    #: was by 14). Protocol: mapped pose success 70.4 ± 22.0 % (worst 20.0) -> 72.3 ± 19.7 % (worst 25.0);
+    #: shares 0.15 and 0.35 gained less on saved maps. 0 disables (docs/STAGE2_MAPPING.md).
     fine_min_seen_share: float = setting(0.25, min=0.0, max=1.0,
                                          doc="fine vertices measured by fewer than this share of their thing's "
                                          "median views are fringe (0: off)")
