@@ -14,6 +14,9 @@ and before the scene is assembled:
   the observation's view would see is covered by observed surface (``view_coverage`` >=
   ``accept_min_coverage``). Screened-only candidates (no full fit) are kept only as the physical check's
   backups, judged when it asks for one (their AE where they would be placed, ``placed_error``).
+* **Class sizes.** A fitted model whose sorted extents lie outside those of its class's models in the
+  library by more than ``accept_class_size_factor`` (``outside_class_sizes``) was stretched or shrunk
+  to a part of the object and is not kept: no model of the class is that size.
 * **Size agreement.** The models that explain the observation about as well as the chosen one (the
   accepted fully fitted candidates of its class whose two-sided AE is within ``size_spread_ae_ratio``
   times the chosen one's) must agree on the object's size: when one of them is fitted more than
@@ -32,11 +35,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from cad_replacement.alignment import ModelGeometry, PreparedObservation
 from cad_replacement.observation import ObjectObservation
@@ -87,6 +91,47 @@ def fitted_extents(candidate: CandidateResult) -> NDArray[np.float64]:
     return np.array([min(x, y), max(x, y), extents[up]])
 
 
+#: Per class: the smallest and the largest sorted extents (m) of its models in the library
+#: (``class_size_range``), what ``outside_class_sizes`` holds a fitted model's size against.
+ClassSizes = Mapping[str, tuple[NDArray[np.float64], NDArray[np.float64]]]
+
+
+def class_size_range(box_sizes: Iterable[ArrayLike]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(smallest, largest) sorted extents over models' box sizes, extent by extent (the thinnest
+    extent against the thinnest): the sizes a class's models span, whatever way each one is posed."""
+    ext = np.sort(np.asarray([np.asarray(b, np.float64).reshape(3) for b in box_sizes]), axis=1)
+    if not len(ext) or not np.all(np.isfinite(ext)):
+        raise ValueError("class_size_range needs at least one finite box size")
+    return ext.min(axis=0), ext.max(axis=0)
+
+
+def outside_class_sizes(candidate: CandidateResult, sizes: ClassSizes | None, factor: float) -> str:
+    """Why ``candidate``'s fitted size is no size its class has ("" when it is, when its class has no
+    range in ``sizes``, or with ``factor`` 0): a sorted extent below the class's smallest / ``factor``
+    or above its largest x ``factor``.
+
+    A fit stretched or shrunk beyond every model of its class fitted a part of the object: on the
+    protocol's saved maps such fits were a book's corner seen over a shelf's edge (5 x 7 cm), cups
+    whose lower half a shelf board hid (3.6-3.8 cm tall), a book 14 cm thick; 14 of the 15 placements
+    outside the library's range at 1.25 were wrong (the right one a bottle 4.8 cm wide, 0.77 of the
+    narrowest model). Orientation-free: extents are compared sorted, so a lying book meets the
+    library's standing ones."""
+    if sizes is None or factor <= 0.0:
+        return ""
+    span = sizes.get(candidate.class_name)
+    if span is None:
+        return ""
+    lo, hi = span
+    ext = np.sort(np.asarray(candidate.placement.scale, np.float64) * np.asarray(candidate.match.features.box_size,
+                                                                               np.float64))
+    if np.all(ext >= lo / factor) and np.all(ext <= hi * factor):
+        return ""
+    shown = " x ".join(f"{100 * v:.1f}" for v in ext)
+    return (f"fitted size {shown} cm is outside the {candidate.class_name} models' sizes "
+            f"({' x '.join(f'{100 * v:.1f}' for v in lo)} to {' x '.join(f'{100 * v:.1f}' for v in hi)} cm, "
+            f"/ x {factor:g})")
+
+
 def size_spread(chosen: CandidateResult, others: list[CandidateResult],
                 cfg: CadReplacementConfig) -> tuple[float, CandidateResult | None]:
     """Largest relative difference of an extent between ``chosen`` and the fully fitted ``others``
@@ -101,8 +146,10 @@ def size_spread(chosen: CandidateResult, others: list[CandidateResult],
     return spreads[k], near[k]
 
 
-def rejection(candidate: CandidateResult, limit: float, cfg: CadReplacementConfig) -> str:
-    """Why ``candidate`` may not stand for the observation ("" when it may)."""
+def rejection(candidate: CandidateResult, limit: float, cfg: CadReplacementConfig,
+              class_sizes: ClassSizes | None = None) -> str:
+    """Why ``candidate`` may not stand for the observation ("" when it may); with ``class_sizes``
+    also when its fitted size is none its class has (``outside_class_sizes``)."""
     if candidate.stage not in ("full", "placed"):
         return "not fully fitted"
     ae = candidate.ae
@@ -113,7 +160,7 @@ def rejection(candidate: CandidateResult, limit: float, cfg: CadReplacementConfi
     cov = ae.view_coverage
     if math.isfinite(cov) and cov < cfg.accept_min_coverage:
         return f"coverage {100 * cov:.0f} % < {100 * cfg.accept_min_coverage:.0f} % of the visible model surface"
-    return ""
+    return outside_class_sizes(candidate, class_sizes, cfg.accept_class_size_factor)
 
 
 @dataclass
@@ -137,8 +184,10 @@ class Verdict:
     class_comparison: dict[str, Any] = field(default_factory=dict)
 
 
-def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplacementConfig) -> Verdict:
-    """Order ``rep``'s candidates by the class margin and keep those that explain the observation."""
+def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplacementConfig,
+          class_sizes: ClassSizes | None = None) -> Verdict:
+    """Order ``rep``'s candidates by the class margin and keep those that explain the observation
+    (``rejection``; ``class_sizes``: the library's size range per class, None: not tested)."""
     limit = ae_limit(observation, cfg)
     cands = list(rep.candidates)
     detected = rep.class_name
@@ -154,9 +203,17 @@ def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplac
         first = other if wins else own
     elif own is not None:
         first = own
-    rejections = [rejection(c, limit, cfg) if cfg.accept_gate else ("" if c.stage == "full" else "not fully fitted")
-                  for c in cands]
+    fit_rejections = [rejection(c, limit, cfg) if cfg.accept_gate
+                      else ("" if c.stage == "full" else "not fully fitted")
+                      for c in cands]
+    rejections = [why or (outside_class_sizes(c, class_sizes, cfg.accept_class_size_factor) if cfg.accept_gate
+                          else "")
+                  for c, why in zip(cands, fit_rejections, strict=True)]
     ok = {id(c) for c, why in zip(cands, rejections, strict=True) if not why}
+    # Models that explain the observation, whatever their size: a model of a size no model of its class
+    # has is not kept, but that it fits as well as the chosen one still says the observation leaves
+    # the size open (the size-agreement test below).
+    fits = {id(c) for c, why in zip(cands, fit_rejections, strict=True) if not why}
     ordered = ([first] if first is not None else []) + [c for c in cands if c is not first]
     # Without a margin win the detected class keeps the object: another class's model is then no
     # alternative either (the physical check would swap it in unannounced).
@@ -174,7 +231,8 @@ def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplac
             verdict.reason = rep.message or "no CAD candidate"
     else:
         if cfg.accept_gate and cfg.accept_max_size_spread > 0.0:
-            spread, other = size_spread(accepted[0], accepted[1:], cfg)
+            spread, other = size_spread(accepted[0], [c for c in ordered if id(c) in fits and c.class_name == klass],
+                                        cfg)
             if spread > cfg.accept_max_size_spread and other is not None:
                 verdict.reason = (f"fitted models disagree on its size by {100 * spread:.0f} % > "
                                   f"{100 * cfg.accept_max_size_spread:.0f} % ({accepted[0].key} against "
@@ -190,4 +248,5 @@ def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplac
     return verdict
 
 
-__all__ = ["Verdict", "ae_limit", "fit_figures", "fitted_extents", "judge", "placed_error", "rejection", "size_spread"]
+__all__ = ["ClassSizes", "Verdict", "ae_limit", "class_size_range", "fit_figures", "fitted_extents", "judge",
+           "outside_class_sizes", "placed_error", "rejection", "size_spread"]

@@ -175,6 +175,12 @@ class CadReplacementConfig:
     #: 0 turns the test off.
     accept_max_size_spread: float = 0.3
     size_spread_ae_ratio: float = 1.5
+    #: Class sizes (``acceptance.outside_class_sizes``): a fitted model whose extents (its two horizontal
+    #: ones sorted, then its height) fall below the smallest or above the largest of its class's models in
+    #: the library by more than this factor stands for a size no model of the class has; it was stretched
+    #: or shrunk to a part of the object (a book's corner above a shelf's edge, a cup's rim over a shelf
+    #: board) and the object keeps its observed mesh. 0 turns the test off.
+    accept_class_size_factor: float = 1.25
     #: A model of another (interchangeable) class replaces the best model of the detected class only
     #: when its two-sided AE is at most ``1 - class_margin`` times that one's: 0.2 is the tie the
     #: selection score already gives the detected class (``class_ae_factor`` 0.25: 1 / 1.25 = 0.8),
@@ -224,6 +230,8 @@ class CadReplacementConfig:
             raise ValueError("need 0 < accept_ae_min <= accept_ae_max and accept_ae_rel >= 0")
         if not 0.0 <= self.accept_min_coverage <= 1.0:
             raise ValueError("accept_min_coverage must be within [0, 1]")
+        if not (self.accept_class_size_factor == 0.0 or self.accept_class_size_factor >= 1.0):
+            raise ValueError("accept_class_size_factor must be 0 (off) or >= 1")
         if self.accept_max_size_spread < 0.0 or self.size_spread_ae_ratio < 1.0:
             raise ValueError("need accept_max_size_spread >= 0 and size_spread_ae_ratio >= 1")
         if not 0.0 <= self.class_margin < 1.0:

@@ -26,7 +26,7 @@ import copy
 import hashlib
 import logging
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any
@@ -34,7 +34,15 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from cad_replacement.acceptance import ae_limit, fit_figures, judge, placed_error, rejection
+from cad_replacement.acceptance import (
+    ClassSizes,
+    ae_limit,
+    class_size_range,
+    fit_figures,
+    judge,
+    placed_error,
+    rejection,
+)
 from cad_replacement.alignment import PreparedObservation
 from cad_replacement.cad.features import scan_features
 from cad_replacement.cad.model import CadModel, Link
@@ -281,6 +289,7 @@ class CadReplacer:
         self.cache = GeometryCache(library.model, samples=self.config.ae_model_samples,
                                    store=library_store(library))
         self._results: dict[int, _Cached] = {}
+        self._class_sizes: dict[str, tuple[np.ndarray, np.ndarray] | None] = {}
         self._owns_workers = workers is None
         if workers is None:
             n_workers = resolve_workers(self.config.workers)
@@ -375,7 +384,8 @@ class CadReplacer:
             record.timings = dict(replacement.timings)
             record.message = replacement.message
             assert job.obs is not None
-            verdict = judge(replacement, job.obs, self.config)
+            verdict = judge(replacement, job.obs, self.config,
+                            self.class_sizes({c.class_name for c in replacement.candidates}))
             record.candidates = [
                 {"cad_id": c.key, "class_name": c.class_name, "matching_error": c.matching_error,
                  "alignment_error": c.ae.ae, "score": c.score, "stage": c.stage, "scale": c.scale.tolist(),
@@ -403,6 +413,15 @@ class CadReplacer:
         result = _Cached(job.key, replacement, record, job.obs)
         self._results[node.id] = result
         return result
+
+    def class_sizes(self, classes: Iterable[str]) -> ClassSizes:
+        """The library's size range of each of ``classes`` (``acceptance.class_size_range``; a class
+        without models has none), computed once per class."""
+        for name in classes:
+            if name not in self._class_sizes:
+                boxes = [f.box_size for _, f in self.library.candidates(name)]
+                self._class_sizes[name] = class_size_range(boxes) if boxes else None
+        return {n: r for n in classes if (r := self._class_sizes.get(n)) is not None}
 
     def _replace_here(self, obs: ObjectObservation) -> ObjectReplacement | BaseException:
         try:
@@ -634,7 +653,8 @@ class _RankedAlternatives(Sequence[PlacedObject]):
             self._prepared = PreparedObservation.build(self._obs, replacer.config)
         judged = placed_error(self._prepared, cand, replacer.cache.get(cand.match.entry), replacer.config)
         ok = not replacer.config.accept_gate or not rejection(judged, ae_limit(self._obs, replacer.config),
-                                                                 replacer.config)
+                                                                 replacer.config,
+                                                                 replacer.class_sizes([judged.class_name]))
         return judged if ok else None
 
 

@@ -354,3 +354,69 @@ def test_a_scan_the_physical_check_puts_in_a_models_place_is_recorded_as_the_obs
     assert "no model of it has room" in rec.reason and "-> observed mesh" in rec.message
     assert rec.scale == [1.0, 1.0, 1.0] and rec.joint_values == {}
     assert result.scene.object("box_2").model.source == "observed"
+
+
+# ----------------------------------------------------------------------------- class sizes
+
+
+CHAIR_SIZES = {"chair": (np.array([0.40, 0.45, 0.80]), np.array([0.60, 0.65, 1.10]))}
+
+
+def test_the_class_size_range_spans_the_sorted_extents_of_its_models():
+    from cad_replacement.acceptance import class_size_range
+
+    lo, hi = class_size_range([(0.2, 0.1, 0.3), (0.15, 0.4, 0.2)])
+    assert lo == pytest.approx([0.1, 0.2, 0.3]) and hi == pytest.approx([0.15, 0.2, 0.4])
+    with pytest.raises(ValueError):
+        class_size_range([])
+    with pytest.raises(ValueError):
+        class_size_range([(0.1, float("nan"), 0.2)])
+
+
+def test_a_model_fitted_to_a_size_no_model_of_its_class_has_leaves_the_observed_mesh():
+    cfg = CadReplacementConfig()
+    squashed = _fitted("chair/a", 0.006, (0.45, 0.50, 0.40))  # 40 cm tall: a seat seen over a table's edge
+    verdict = judge(_replacement([squashed]), _chair_observation(), cfg, CHAIR_SIZES)
+    assert verdict.accepted == [] and "outside the chair models' sizes" in verdict.reason, verdict.reason
+    assert "(chair/a)" in verdict.reason
+    # within the range widened by the factor (0.8 m / 1.25 = 0.64 m tall): kept, however it lies
+    ok = _fitted("chair/b", 0.006, (0.45, 0.50, 0.66), yaw_deg=30.0)
+    lying = _fitted("chair/c", 0.007, (0.66, 0.50, 0.45), lying=True)
+    verdict = judge(_replacement([ok, lying]), _chair_observation(), cfg, CHAIR_SIZES)
+    assert verdict.accepted[0] is ok and verdict.rejections == ["", ""]
+    # too large as well; a class without a range, the factor 0 or no ranges at all do not test
+    assert judge(_replacement([_fitted("chair/d", 0.006, (0.45, 0.50, 1.40))]), _chair_observation(), cfg,
+                 CHAIR_SIZES).accepted == []
+    for sizes, conf in ((CHAIR_SIZES, CadReplacementConfig(accept_class_size_factor=0.0)), ({}, cfg), (None, cfg)):
+        assert judge(_replacement([squashed]), _chair_observation(), conf, sizes).accepted[0] is squashed
+    with pytest.raises(ValueError):
+        CadReplacementConfig(accept_class_size_factor=0.9)
+
+
+def test_the_replacer_holds_a_fragment_fitted_far_below_its_class_to_the_observed_mesh():
+    # a 15 cm "box": the library's boxes are 42-48 cm at their longest, a box model fits the cube only
+    # shrunk to 0.36 of that, a size no box of the library has
+    floor = Entity.from_mesh(1, "floor_1", "floor", trimesh.creation.box([2, 2, 0.02]).apply_translation([0, 0, -0.01]))
+    cube = Entity.from_mesh(2, "box_2", "box", trimesh.creation.box([0.15, 0.15, 0.15]).apply_translation([0.3, 0, 0.075]))
+    library = CadLibrary(seeds_per_class=3)
+    replacer = CadReplacer(library, CadReplacementConfig(workers=1))
+    lo, hi = replacer.class_sizes(["box", "no such class"])["box"]
+    assert lo[2] > 0.15 * 1.25 and set(replacer.class_sizes(["box", "no such class"])) == {"box"}
+    graph = build_contact_graph([floor, cube])
+    rec = next(r for r in replacer.replace(graph, {1: floor, 2: cube}).records if r.name == "box_2")
+    assert rec.kind == "observed_mesh" and "outside the box models' sizes" in rec.reason, rec.reason
+    off = CadReplacer(library, CadReplacementConfig(workers=1, accept_class_size_factor=0.0))
+    rec_off = next(r for r in off.replace(graph, {1: floor, 2: cube}).records if r.name == "box_2")
+    assert rec_off.kind == "cad", rec_off.reason
+
+
+def test_a_model_of_no_class_size_that_fits_as_well_still_says_the_size_is_open():
+    # the chosen chair is a chair's size; a model stretched to 1.5 m fits the observation as well: that
+    # model is not kept, and its fit still says the observation does not determine the height
+    cfg = CadReplacementConfig()
+    chosen = _fitted("chair/a", 0.008, (0.45, 0.50, 0.90))
+    tall = _fitted("chair/b", 0.009, (0.45, 0.50, 1.50))
+    verdict = judge(_replacement([chosen, tall]), _chair_observation(), cfg, CHAIR_SIZES)
+    assert verdict.accepted == [] and verdict.reason.startswith("fitted models disagree on its size"), verdict.reason
+    assert verdict.rejections[0] == "size not determined by the observation"
+    assert "outside the chair models' sizes" in verdict.rejections[1]
