@@ -138,8 +138,15 @@ def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
     from scene_recon.cli import main as cli
 
     rec = _recording(tmp_path / "rec")
+    # This test is about the ROS graph carrying a door (joint states, actions, TF). The generated room's
+    # articulated objects fit the 3-model library only as a dishwasher stretched to 32 x 90 x 100 cm, which
+    # stage 4's class-size test holds back (no dishwasher model is that shape); both runs turn it off.
+    preset = tmp_path / "plumbing.yaml"
+    preset.write_text("description: the class-size test off (the door's plumbing is under test)\n"
+                      "cad:\n  accept_class_size_factor: 0.0\n")
     t0 = time.perf_counter()
-    assert cli(["run", rec["bag"], "--out", str(tmp_path / "offline"), "--seeds-per-class", SEEDS]) == 0
+    assert cli(["run", rec["bag"], "--out", str(tmp_path / "offline"), "--seeds-per-class", SEEDS,
+                "--preset", str(preset)]) == 0
     offline_s = time.perf_counter() - t0
 
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id("e2e")),
@@ -155,7 +162,8 @@ def test_bag_through_four_node_processes_matches_offline_run(tmp_path):
     mapper_yaml["checkpoint"].update(every_n_frames=1, every_s=0.0)
     (config / "mapper.yaml").write_text(yaml.safe_dump(mapper_yaml))
     runner = subprocess.Popen([sys.executable, "-m", "scene_recon.cli", "ros-run", "--bag", rec["bag"], "--out",
-                               str(out), "--seeds-per-class", SEEDS, "--keep-running", "--config-dir", str(config)],
+                               str(out), "--seeds-per-class", SEEDS, "--keep-running", "--config-dir", str(config),
+                               "--preset", str(preset)],
                               env=env, stdout=log.open("w"), stderr=subprocess.STDOUT, cwd=tmp_path)
     rclpy.init()
     node = rclpy.create_node("e2e_client")
