@@ -122,8 +122,7 @@ def outside_class_sizes(candidate: CandidateResult, sizes: ClassSizes | None, fa
     if span is None:
         return ""
     lo, hi = span
-    ext = np.sort(np.asarray(candidate.placement.scale, np.float64) * np.asarray(candidate.match.features.box_size,
-                                                                               np.float64))
+    ext = np.sort(fitted_extents(candidate))
     if np.all(ext >= lo / factor) and np.all(ext <= hi * factor):
         return ""
     shown = " x ".join(f"{100 * v:.1f}" for v in ext)
@@ -206,8 +205,8 @@ def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplac
     fit_rejections = [rejection(c, limit, cfg) if cfg.accept_gate
                       else ("" if c.stage == "full" else "not fully fitted")
                       for c in cands]
-    rejections = [why or (outside_class_sizes(c, class_sizes, cfg.accept_class_size_factor) if cfg.accept_gate
-                          else "")
+    sizes = class_sizes if cfg.accept_gate else None
+    rejections = [why or outside_class_sizes(c, sizes, cfg.accept_class_size_factor)
                   for c, why in zip(cands, fit_rejections, strict=True)]
     ok = {id(c) for c, why in zip(cands, rejections, strict=True) if not why}
     # Models that explain the observation, whatever their size: a model of a size no model of its class
