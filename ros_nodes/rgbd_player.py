@@ -49,7 +49,7 @@ from ros_nodes.conversions import (
 )
 from ros_nodes.parameters import declare_config, warn_unknown_parameters
 from ros_nodes.qos import PROGRESS_TOPIC, SENSOR_RECORDING, STATUS, TF_DYNAMIC
-from ros_nodes.runner import init_ros
+from ros_nodes.runner import init_ros, start_exit_watchdog
 
 
 @dataclass
@@ -417,6 +417,7 @@ class RGBDPlayer(Node):
 
 def main(args: list[str] | None = None) -> int:
     stop = init_ros(args)  # SIGINT/SIGTERM set `stop`: the loop ends, the node is destroyed, exit 0
+    start_exit_watchdog(stop, nothing_to_save=True)
     node = RGBDPlayer()
     warn_unknown_parameters(node)
     try:

@@ -13,9 +13,12 @@ A node that shut down cleanly exits 0 even when Open3D tensors are still allocat
 from __future__ import annotations
 
 import ctypes
+import faulthandler
+import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -35,6 +38,17 @@ from ros_nodes.parameters import warn_unknown_parameters
 
 #: How often (s) the spin loop looks at the stop flag.
 STOP_POLL_S = 0.1
+#: How long (s) a node may take from SIGINT/SIGTERM to its exit before the exit watchdog ends it. An orderly
+#: stop takes well under a second; `scene-recon ros-run` kills a node still running after 30 s.
+EXIT_DEADLINE_S = 20.0
+#: How long (s) the executor's callbacks get to finish once the node stops spinning.
+DRAIN_S = 10.0
+
+#: Set once a node's own shutdown (`on_shutdown`: the mapper's last checkpoint) has run: what is left is
+#: the middleware's teardown, which the exit watchdog may cut short without losing anything.
+_node_state_saved = threading.Event()
+#: Set while that shutdown runs: a long last checkpoint is not cut short (the supervisor has the last word).
+_node_saving = threading.Event()
 
 
 def steady_timer(node: Node, period_s: float, callback: Callable[[], None],
@@ -65,7 +79,43 @@ def init_ros(args: list[str] | None = None) -> threading.Event:
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, _on_signal)
+        # A supervisor about to kill a node that did not stop in time sends SIGUSR1 first: every thread's
+        # Python stack goes to stderr (the node's log), so the log says where the shutdown hung.
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     return stop
+
+
+def start_exit_watchdog(stop: threading.Event, deadline_s: float = EXIT_DEADLINE_S,
+                        nothing_to_save: bool = False) -> threading.Thread:
+    """Bound a node's exit: `deadline_s` after `stop` is set, a process still running writes every thread's
+    stack to stderr (the node's log) and ends itself, with exit code 0 when the node's own shutdown had
+    completed (`shutdown_node`; `nothing_to_save`: a node with no state) and only the teardown hung, else 1.
+
+    Seen once in CI: a segmentation service was still running 30 s after SIGINT and the runner killed it
+    (-9) without a trace of where it hung. A callback thread stuck in the middleware keeps a multi-threaded
+    executor's shutdown (it joins its thread pool) and Python's own exit (it joins every pool thread) from
+    ever returning; this names the place and ends the process while the supervisor still waits."""
+
+    def watch() -> None:
+        stop.wait()
+        time.sleep(deadline_s)
+        if _node_saving.is_set():
+            while _node_saving.is_set():
+                time.sleep(0.1)
+            time.sleep(min(deadline_s, 5.0))
+        done = nothing_to_save or _node_state_saved.is_set()
+        sys.stderr.write(f"exit watchdog: the node is still running {deadline_s:.0f} s after the stop signal "
+                         f"({'its shutdown had completed' if done else 'its shutdown had not completed'}); "
+                         "the threads' stacks:\n")
+        sys.stderr.flush()
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+        sys.stderr.flush()
+        sys.stdout.flush()
+        os._exit(0 if done else 1)
+
+    thread = threading.Thread(target=watch, name="exit-watchdog", daemon=True)
+    thread.start()
+    return thread
 
 
 def make_executor(node: Node, threads: int = 1) -> Executor:
@@ -97,19 +147,23 @@ def spin_until_stopped(node: Node, stop: threading.Event, threads: int = 1) -> N
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        _drain(executor, node, timeout_s=30.0)
-        executor.shutdown(timeout_sec=30)
+        drained = _drain(executor, node, timeout_s=DRAIN_S)
+        if isinstance(executor, MultiThreadedExecutor):
+            # (its shutdown joins the thread pool without a time limit: with a callback still stuck, the
+            # node's own shutdown goes first, and the exit watchdog bounds the rest)
+            executor.shutdown(timeout_sec=DRAIN_S, wait_for_threads=drained)
+        else:
+            executor.shutdown(timeout_sec=DRAIN_S)
 
 
-def _drain(executor: Executor, node: Node, timeout_s: float) -> None:
+def _drain(executor: Executor, node: Node, timeout_s: float) -> bool:
     """Let the callbacks already handed to a multi-threaded executor's thread pool finish, before the
     executor is shut down. rclpy's `Executor.shutdown` destroys its guard condition first and joins the
     pool after: a queued callback (one whose mutually exclusive group was busy) then triggered the
     destroyed guard and died with InvalidHandle, printed at exit as `The following exception was never
     retrieved: cannot use Destroyable because destruction was requested`. A callback that failed on
-    its own is logged here instead of that line."""
-    import time
-
+    its own is logged here instead of that line. Returns False when a callback was still running at the
+    end of `timeout_s` (logged)."""
     tasks = list(getattr(executor, "_futures", ()))
     deadline = time.monotonic() + timeout_s
     while any(not t.done() for t in tasks) and time.monotonic() < deadline:
@@ -119,16 +173,27 @@ def _drain(executor: Executor, node: Node, timeout_s: float) -> None:
             exc = task.exception()  # marks it retrieved
             if exc is not None:
                 node.get_logger().error(f"a callback failed while stopping: {type(exc).__name__}: {exc}")
+    running = sum(1 for t in tasks if not t.done())
+    if running:
+        node.get_logger().warning(f"{running} callback(s) still running {timeout_s:.0f} s after the stop; "
+                                  "shutting down without waiting for them")
+    return not running
 
 
 def shutdown_node(node: Node) -> None:
     """The node's `on_shutdown()` (if any; its failure is logged), then destroy it and the context."""
     hook = getattr(node, "on_shutdown", None)
+    saved = True
     if hook is not None:
+        _node_saving.set()
         try:
             hook()
         except Exception as exc:  # a failing clean-up is reported, the exit stays orderly
+            saved = False
             node.get_logger().error(f"shutdown: {type(exc).__name__}: {exc}")
+        _node_saving.clear()
+    if saved:
+        _node_state_saved.set()
     node.destroy_node()
     rclpy.try_shutdown()
 
@@ -164,6 +229,7 @@ def keep_exit_code_from_open3d() -> bool:
 def run_node(factory: Callable[[], Node], args: list[str] | None = None, threads: int = 1) -> int:
     """Create the node with `factory` and spin it (on `threads` executor threads); returns the exit code."""
     stop = init_ros(args)
+    start_exit_watchdog(stop)
     node = factory()
     warn_unknown_parameters(node)
     try:

@@ -61,7 +61,7 @@ from ros_nodes import diagnostics as diag
 from ros_nodes.conversions import image_to_depth, image_to_labels, image_to_rgb, labels_to_image, stamp_to_ns
 from ros_nodes.parameters import declare_config, declare_config_file, warn_unknown_parameters
 from ros_nodes.qos import SENSOR_RECORDING
-from ros_nodes.runner import init_ros, shutdown_node, spin_until_stopped, steady_timer
+from ros_nodes.runner import init_ros, shutdown_node, spin_until_stopped, start_exit_watchdog, steady_timer
 
 NODE_NAME = "segmentation_service"
 DEFAULT_LABELS_TOPIC = "/ground_truth/panoptic_labels"
@@ -302,6 +302,7 @@ def _fmt_stamp(ns: int) -> str:
 
 def main(args: list[str] | None = None) -> int:
     stop = init_ros(args)
+    start_exit_watchdog(stop)
     try:
         node = SegmentationService()
     except (SegmentationError, ConfigError, DatasetError, KeyError, OSError) as exc:

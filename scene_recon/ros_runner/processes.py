@@ -153,9 +153,14 @@ def interrupt_group(proc: subprocess.Popen, timeout_s: float) -> int:
         return int(proc.wait())
 
 
+#: How long (s) a node that did not stop in time gets to write its threads' stacks (SIGUSR1) before SIGKILL.
+STACK_DUMP_S = 2.0
+
+
 def stop_children(children: list[Child], timeout_s: float = 30.0) -> dict[str, int]:
     """SIGINT every child still running (in the given order), then wait for each; a child that does not
-    exit within `timeout_s` is killed. Returns the exit codes by node name."""
+    exit within `timeout_s` is asked for its threads' stacks (SIGUSR1: `ros_nodes.runner.init_ros` registers
+    faulthandler for it; they land in the node's log) and then killed. Returns the exit codes by node name."""
     for child in children:
         if child.poll() is None:
             with contextlib.suppress(ProcessLookupError):
@@ -165,8 +170,13 @@ def stop_children(children: list[Child], timeout_s: float = 30.0) -> dict[str, i
         try:
             child.proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
-            child.proc.kill()
-            child.proc.wait()
+            with contextlib.suppress(ProcessLookupError):
+                child.proc.send_signal(signal.SIGUSR1)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                child.proc.wait(timeout=STACK_DUMP_S)
+            if child.proc.poll() is None:
+                child.proc.kill()
+                child.proc.wait()
         child.reader.join(timeout=5)
         codes[child.name] = int(child.proc.returncode)
     return codes
