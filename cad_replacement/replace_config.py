@@ -181,6 +181,13 @@ class CadReplacementConfig:
     #: or shrunk to a part of the object (a book's corner above a shelf's edge, a cup's rim over a shelf
     #: board) and the object keeps its observed mesh. 0 turns the test off.
     accept_class_size_factor: float = 1.25
+    #: Turned in the fit (``acceptance.turned_in_fit``): a fully fitted model whose yaw the fit turned more
+    #: than this (degrees) away from the orientation it was matched in (the observed box's or a large
+    #: vertical plane's axes) slid into a pose that covers the points seen without matching the outline
+    #: (a table whose top was half hidden under its load, turned 26 degrees in every draw) and is not kept;
+    #: round classes, whose yaw the fit may turn freely, are not tested. The same 20 degrees a layout
+    #: variant may turn (``replace_object.LAYOUT_YAW_TOL``). 0 turns the test off.
+    accept_max_fit_turn_deg: float = 20.0
     #: A model of another (interchangeable) class replaces the best model of the detected class only
     #: when its two-sided AE is at most ``1 - class_margin`` times that one's: 0.2 is the tie the
     #: selection score already gives the detected class (``class_ae_factor`` 0.25: 1 / 1.25 = 0.8),
@@ -232,6 +239,8 @@ class CadReplacementConfig:
             raise ValueError("accept_min_coverage must be within [0, 1]")
         if not (self.accept_class_size_factor == 0.0 or self.accept_class_size_factor >= 1.0):
             raise ValueError("accept_class_size_factor must be 0 (off) or >= 1")
+        if not 0.0 <= self.accept_max_fit_turn_deg <= 180.0:
+            raise ValueError("accept_max_fit_turn_deg must be in [0, 180] degrees (0: off)")
         if self.accept_max_size_spread < 0.0 or self.size_spread_ae_ratio < 1.0:
             raise ValueError("need accept_max_size_spread >= 0 and size_spread_ae_ratio >= 1")
         if not 0.0 <= self.class_margin < 1.0:

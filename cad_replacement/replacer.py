@@ -302,6 +302,13 @@ class CadReplacer:
         (and ``observed_space: false``) does not."""
         return self.config.observed_space and self.config.method != "paper"
 
+    def round_body(self, class_name: str) -> bool:
+        """Whether the class table declares the class a solid of revolution (the fit may turn its yaw freely)."""
+        try:
+            return bool(self.class_table.by_name(class_name).round)
+        except UnknownClassError:
+            return False
+
     def _max_size(self, class_name: str) -> float | None:
         """The class table's largest extent of a class (None: unknown class or not given)."""
         try:
@@ -385,7 +392,8 @@ class CadReplacer:
             record.message = replacement.message
             assert job.obs is not None
             verdict = judge(replacement, job.obs, self.config,
-                            self.class_sizes({c.class_name for c in replacement.candidates}))
+                            self.class_sizes({c.class_name for c in replacement.candidates}),
+                            round_body=self.round_body(job.obs.class_name))
             record.candidates = [
                 {"cad_id": c.key, "class_name": c.class_name, "matching_error": c.matching_error,
                  "alignment_error": c.ae.ae, "score": c.score, "stage": c.stage, "scale": c.scale.tolist(),
@@ -652,9 +660,10 @@ class _RankedAlternatives(Sequence[PlacedObject]):
         if self._prepared is None:
             self._prepared = PreparedObservation.build(self._obs, replacer.config)
         judged = placed_error(self._prepared, cand, replacer.cache.get(cand.match.entry), replacer.config)
-        ok = not replacer.config.accept_gate or not rejection(judged, ae_limit(self._obs, replacer.config),
-                                                                 replacer.config,
-                                                                 replacer.class_sizes([judged.class_name]))
+        cfg = replacer.config
+        ok = not cfg.accept_gate or not rejection(judged, ae_limit(self._obs, cfg), cfg,
+                                                  replacer.class_sizes([judged.class_name]),
+                                                  replacer.round_body(self._obs.class_name))
         return judged if ok else None
 
 

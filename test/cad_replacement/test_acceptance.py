@@ -283,19 +283,24 @@ def test_an_object_the_graph_hangs_on_a_wall_is_mounted_there():
 # ----------------------------------------------------------------------------- size agreement
 
 
+def _rz(yaw_deg: float) -> np.ndarray:
+    turn = np.radians(yaw_deg)
+    return np.array([[np.cos(turn), -np.sin(turn), 0.0], [np.sin(turn), np.cos(turn), 0.0], [0.0, 0.0, 1.0]])
+
+
 def _fitted(key: str, ae: float, size: tuple[float, float, float], yaw_deg: float = 0.0,
-            lying: bool = False) -> CandidateResult:
+            lying: bool = False, turned_in_fit_deg: float = 0.0) -> CandidateResult:
     """A fully fitted candidate whose model box (0.2 x 0.1 x 0.3 m at scale 1) is scaled to ``size``
-    (model axes), turned by ``yaw_deg`` and, ``lying``, laid on its side (model z along map x)."""
+    (model axes), turned by ``yaw_deg`` and, ``lying``, laid on its side (model z along map x); matched
+    ``turned_in_fit_deg`` before that yaw (the fit turned it by that much)."""
     from cad_replacement.alignment import Placement
 
     model = np.array([0.2, 0.1, 0.3])
-    turn = np.radians(yaw_deg)
-    rz = np.array([[np.cos(turn), -np.sin(turn), 0.0], [np.sin(turn), np.cos(turn), 0.0], [0.0, 0.0, 1.0]])
     side = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]) if lying else np.eye(3)
-    placement = Placement(rz @ side, np.zeros(3), np.asarray(size) / model)
+    placement = Placement(_rz(yaw_deg) @ side, np.zeros(3), np.asarray(size) / model)
     match = SimpleNamespace(entry=SimpleNamespace(key=key, class_name="chair"), error=0.1,
-                            features=SimpleNamespace(box_size=model))
+                            features=SimpleNamespace(box_size=model),
+                            rotation=_rz(yaw_deg - turned_in_fit_deg) @ side)
     return CandidateResult(match, placement, AlignmentError(ae, ae, ae, 1.0, 1.0, 1.0), ae,  # type: ignore[arg-type]
                            {}, "full", 0.0, 1)
 
@@ -421,3 +426,35 @@ def test_a_model_of_no_class_size_that_fits_as_well_still_says_the_size_is_open(
     assert verdict.accepted == [] and verdict.reason.startswith("fitted models disagree on its size"), verdict.reason
     assert verdict.rejections[0] == "size not determined by the observation"
     assert "outside the chair models' sizes" in verdict.rejections[1]
+
+
+def test_a_model_the_fit_turned_far_from_its_matched_orientation_is_not_kept():
+    from cad_replacement.acceptance import fit_turn
+
+    cfg = CadReplacementConfig()
+    turned = _fitted("chair/a", 0.008, (0.45, 0.50, 0.9), yaw_deg=116.0, turned_in_fit_deg=26.0)  # the better AE
+    kept = _fitted("chair/b", 0.010, (0.45, 0.50, 0.9), yaw_deg=95.0, turned_in_fit_deg=-15.0)
+    assert np.degrees(fit_turn(turned)) == pytest.approx(26.0) and np.degrees(fit_turn(kept)) == pytest.approx(15.0)
+    verdict = judge(_replacement([turned, kept]), _chair_observation(), cfg)
+    assert verdict.accepted == [kept] and verdict.reason == ""
+    assert verdict.rejections[0] == "turned 26 degrees in the fit (> 20) from the orientation it was matched in"
+    # measured on a horizontal axis of a model lying on its side; across the +-180 degree wrap
+    lying = _fitted("chair/c", 0.008, (0.45, 0.50, 0.9), yaw_deg=170.0, lying=True, turned_in_fit_deg=30.0)
+    assert np.degrees(fit_turn(lying)) == pytest.approx(30.0)
+    wrapped = _fitted("chair/d", 0.008, (0.45, 0.50, 0.9), yaw_deg=-170.0, turned_in_fit_deg=-25.0)
+    assert np.degrees(fit_turn(wrapped)) == pytest.approx(25.0)
+    # alone, the turned model leaves the observed mesh and says why
+    alone = judge(_replacement([turned]), _chair_observation(), cfg)
+    assert alone.accepted == [] and alone.reason.startswith("turned 26 degrees in the fit")
+    assert "(chair/a)" in alone.reason
+
+
+def test_a_round_body_or_the_test_off_keeps_a_model_turned_in_the_fit():
+    turned = _fitted("chair/a", 0.008, (0.45, 0.50, 0.9), yaw_deg=60.0, turned_in_fit_deg=60.0)
+    cfg = CadReplacementConfig()
+    assert judge(_replacement([turned]), _chair_observation(), cfg, round_body=True).accepted == [turned]
+    for off in (CadReplacementConfig(accept_max_fit_turn_deg=0.0), CadReplacementConfig(accept_gate=False)):
+        assert judge(_replacement([turned]), _chair_observation(), off).accepted == [turned]
+    for bad in (-1.0, 200.0):
+        with pytest.raises(ValueError):
+            CadReplacementConfig(accept_max_fit_turn_deg=bad)
