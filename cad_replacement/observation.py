@@ -66,7 +66,8 @@ class ObjectObservation:
     ``observed_space``: the space around the entity the cameras observed (``None``: not known), so
     model surface in unknown space is unseen rather than missing, and the box may grow into it;
     ``walls``: the room's wall planes, through which it may not grow (the space behind a cabinet
-    against a wall is unknown, and so is the space behind the wall).
+    against a wall is unknown, and so is the space behind the wall); ``neighbours``: the boxes of the
+    other entities, whose surface is theirs even where the mapper joined some of it to this one.
     """
 
     entity_id: int
@@ -80,6 +81,7 @@ class ObjectObservation:
     mesh: trimesh.Trimesh | None = field(default=None, repr=False)
     observed_space: ObservedSpace | None = field(default=None, repr=False)
     walls: tuple[Plane, ...] = field(default=(), repr=False)
+    neighbours: tuple[GravityBox, ...] = field(default=(), repr=False)
     #: ``room`` per box (matching and the fit's start ask for the same frames).
     _rooms: dict[tuple[float, ...], NDArray[np.float64]] = field(default_factory=dict, init=False, repr=False)
 
@@ -451,9 +453,25 @@ HANDLE_SIDE_SAMPLES = 20000
 HANDLE_LAYER = 0.3
 
 
-def handle_side(mesh: trimesh.Trimesh | None, box: GravityBox) -> NDArray[np.float64] | None:
+#: ``handle_side``: surface within this distance (m) of another entity's box counts as inside it (the two
+#: meshes of a joined surface lie up to a voxel apart).
+NEIGHBOUR_MARGIN = 0.01
+
+
+def _inside_box(points: NDArray[np.float64], box: GravityBox, margin: float = 0.0) -> NDArray[np.bool_]:
+    """Per point: inside the gravity-aligned box grown by ``margin`` (its footprint and its height range)."""
+    xy = box.to_local_xy(points[:, :2])
+    half = 0.5 * np.asarray(box.size[:2], dtype=np.float64) + margin
+    return (np.all(np.abs(xy) <= half, axis=1) & (points[:, 2] >= box.z_min - margin)
+            & (points[:, 2] <= box.z_max + margin))
+
+
+def handle_side(mesh: trimesh.Trimesh | None, box: GravityBox,
+                others: Sequence[GravityBox] = ()) -> NDArray[np.float64] | None:
     """Unit xy direction of the box side whose surface has something proud of it (the handles of doors and
     drawers, a door or drawer open), or ``None`` when no side clearly does (see ``HANDLE_DOMINANCE``).
+    Surface inside one of ``others`` (the other entities' boxes) is not proud of anything: it is the
+    neighbour's, joined to this mesh by the mapper (a monitor behind a microwave made its back a front).
 
     An articulated object's front shows itself where it was observed: the context's free space alone
     (``front_direction_from_context``) points out of either free side of a corner (issue 23: an oven in a
@@ -464,6 +482,9 @@ def handle_side(mesh: trimesh.Trimesh | None, box: GravityBox) -> NDArray[np.flo
     pts = np.asarray(samples, dtype=np.float64)
     nrm = np.asarray(mesh.face_normals[faces], dtype=np.float64)
     per_sample = float(mesh.area) / HANDLE_SIDE_SAMPLES
+    theirs = np.zeros(len(pts), dtype=bool)
+    for other in others:
+        theirs |= _inside_box(pts, other, NEIGHBOUR_MARGIN)
     dirs = _side_directions(box)
     area = np.zeros(4)
     for k, d in enumerate(dirs):
@@ -482,7 +503,7 @@ def handle_side(mesh: trimesh.Trimesh | None, box: GravityBox) -> NDArray[np.flo
         across = pts[:, :2] @ dirs[(k + 1) % 4]
         over = (across >= across[face].min()) & (across <= across[face].max()) \
             & (pts[:, 2] >= pts[face, 2].min()) & (pts[:, 2] <= pts[face, 2].max())
-        proud = over & (s > plane + HANDLE_PROUD) & (s < plane + HANDLE_SLAB)
+        proud = over & ~theirs & (s > plane + HANDLE_PROUD) & (s < plane + HANDLE_SLAB)
         area[k] = float(np.count_nonzero(proud)) * per_sample
     best = int(np.argmax(area))
     others = np.delete(area, best)
@@ -493,6 +514,7 @@ def handle_side(mesh: trimesh.Trimesh | None, box: GravityBox) -> NDArray[np.flo
 
 __all__ = [
     "HANDLE_MIN_AREA",
+    "HANDLE_SLAB",
     "MIN_POINTS",
     "ObjectObservation",
     "ObservationError",

@@ -279,7 +279,7 @@ def _observed_front(obs: ObjectObservation) -> NDArray[np.float64] | None:
     observation's points, too few to tell it from a door's edge)."""
     if obs.mesh is None or len(obs.mesh.faces) == 0:
         return None
-    return handle_side(obs.mesh, obs.gravity_box)
+    return handle_side(obs.mesh, obs.gravity_box, obs.neighbours)
 
 
 def _articulated(class_name: str, table: ClassTable | None) -> bool:

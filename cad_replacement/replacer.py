@@ -50,6 +50,7 @@ from cad_replacement.collision import observed_collisions
 from cad_replacement.geometry_cache import GeometryCache, library_store
 from cad_replacement.layout_models import MIN_LAYOUT_THICKNESS, box_model
 from cad_replacement.observation import (
+    HANDLE_SLAB,
     MAX_FOOTPRINT_SHARE,
     MESH_SAMPLES,
     ObjectObservation,
@@ -323,7 +324,8 @@ class CadReplacer:
         parent = graph.nodes.get(edge.parent_id) if edge is not None else None
         box = node.box
         assert box is not None
-        front = front_direction_from_context(box, [b for b in obstacles if b is not box], walls)
+        others = [b for b in obstacles if b is not box]
+        front = front_direction_from_context(box, others, walls)
         # The voted core only: the mapper's fringe fill joins background along depth edges (a 5 cm
         # bottle grows to 17 cm against the cabinet behind it) and the fit would stretch to cover it.
         core_v, core_f = entity.core_mesh()
@@ -352,7 +354,7 @@ class CadReplacer:
         return ObjectObservation(node.id, node.name, node.class_name, points, box=box, normals=normals,
                                  support_z=support_z, front_hint=front, mesh=mesh,
                                  observed_space=entity.observed_space if self._reads_observed_space else None,
-                                 walls=tuple(walls))
+                                 walls=tuple(walls), neighbours=_touching(box, others))
 
     def _node_job(self, node: GraphNode, entity: Entity, graph: ContactGraph, walls: list[Plane],
                   obstacles: list[GravityBox]) -> _Cached | _Job:
@@ -746,6 +748,15 @@ def _note_settled(records: list[ReplacementRecord], changes: Mapping[str, Mappin
             rec.message = "; ".join(m for m in (rec.message, f"observed mesh: {note}") if m)
 
 
+def _touching(box: GravityBox, others: Sequence[GravityBox]) -> tuple[GravityBox, ...]:
+    """The boxes among ``others`` that reach within ``HANDLE_SLAB`` of ``box`` (footprint and height): the
+    only neighbours whose surface can lie where this object's handles would (``handle_side``), so only a
+    change next to the object changes its observation."""
+    grown = GravityBox(box.center, np.asarray(box.size, np.float64) + np.array([2.0, 2.0, 0.0]) * HANDLE_SLAB,
+                       box.yaw)
+    return tuple(b for b in others if grown.z_overlap(b) > 0.0 and grown.footprint_intersection(b) > 0.0)
+
+
 def _hangs_on_wall(graph: ContactGraph, edge: SupportEdge) -> bool:
     """Whether a support edge hangs its child on a wall. Stage 4 models a wall as a vertical slab, so it
     carries nothing from below, whatever plane of the mapped wall (a shelf strip, a counter's edge
@@ -765,6 +776,7 @@ def _observation_digest(obs: ObjectObservation | None) -> str:
     extra = (None if box is None else (*box.center, *box.size, box.yaw), obs.support_z,
              None if obs.front_hint is None else tuple(np.asarray(obs.front_hint, float)))
     h.update(repr(extra).encode())
+    h.update(repr([(*b.center, *b.size, b.yaw) for b in obs.neighbours]).encode())
     if obs.observed_space is not None:  # the grid, and the walls that bound its room
         space = obs.observed_space
         h.update(repr((*space.origin, space.cell, space.shape)).encode())

@@ -71,6 +71,24 @@ def test_a_plain_box_has_no_front() -> None:
     assert handle_side(box, fit_gravity_box(np.asarray(box.vertices))) is None
 
 
+def test_a_neighbours_surface_joined_to_the_back_is_not_a_handle() -> None:
+    """gen-5151's microwave: a monitor standing just behind it was partly mapped into its mesh, and the
+    monitor's strip proud of the back named the back the front in every draw. Surface inside another
+    entity's box is that entity's."""
+    yaw = 0.0
+    body = trimesh.creation.box((0.40, 0.58, 0.33)).apply_translation((0.0, 0.0, 0.165))  # a front without handles
+    strip = trimesh.creation.box((0.03, 0.05, 0.20)).apply_translation((-0.23, -0.15, 0.18))  # the monitor's edge
+    mesh = trimesh.util.concatenate([body, strip])
+    box = fit_gravity_box(np.asarray(body.vertices))
+    assert _gap(_angle(handle_side(mesh, box)), 180.0) < 2.0  # without the neighbour: the back
+    monitor = fit_gravity_box(np.asarray(strip.vertices))
+    assert handle_side(mesh, box, [monitor]) is None
+    # a real handle on the front still names it, the neighbour behind or not
+    handle = trimesh.creation.box((0.03, 0.02, 0.20)).apply_translation((0.22, 0.25, 0.17))
+    with_handle = trimesh.util.concatenate([body, strip, handle])
+    assert _gap(_angle(handle_side(with_handle, box, [monitor])), yaw) < 2.0
+
+
 def test_a_closed_front_takes_the_layout_its_handles_show(tmp_path_factory: pytest.TempPathFactory) -> None:
     """gen-4242's cabinet (two doors under two drawers, closed) against the library's two-door carcass: the
     layout search ranks the fronts by their handles and finds the doors under drawers."""
