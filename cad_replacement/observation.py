@@ -506,8 +506,8 @@ def handle_side(mesh: trimesh.Trimesh | None, box: GravityBox,
         proud = over & ~theirs & (s > plane + HANDLE_PROUD) & (s < plane + HANDLE_SLAB)
         area[k] = float(np.count_nonzero(proud)) * per_sample
     best = int(np.argmax(area))
-    others = np.delete(area, best)
-    if area[best] < HANDLE_MIN_AREA or area[best] < HANDLE_DOMINANCE * float(others.max()):
+    rest = np.delete(area, best)
+    if area[best] < HANDLE_MIN_AREA or area[best] < HANDLE_DOMINANCE * float(rest.max()):
         return None
     return dirs[best].copy()
 
