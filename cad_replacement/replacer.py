@@ -50,6 +50,7 @@ from cad_replacement.collision import observed_collisions
 from cad_replacement.geometry_cache import GeometryCache, library_store
 from cad_replacement.layout_models import MIN_LAYOUT_THICKNESS, box_model
 from cad_replacement.observation import (
+    CHILD_MARGIN,
     HANDLE_SLAB,
     MAX_FOOTPRINT_SHARE,
     MESH_SAMPLES,
@@ -255,20 +256,36 @@ def carried_boxes(graph: ContactGraph, node: GraphNode) -> list[GravityBox]:
     return [b for b in boxes if b is not None]
 
 
+#: ``observed_mesh_object``: a scan's surface less than this (m) above the bottom of an object standing on it is
+#: the surface it stands on (kept: a hole there would drop the object), not a piece of the object.
+LOAD_CLEARANCE = 0.01
+
+
+def _load_pieces(vertices: np.ndarray, carried: Sequence[GravityBox]) -> np.ndarray:
+    """Per vertex: in one of the ``carried`` boxes (footprint grown by ``CHILD_MARGIN``), above its bottom by
+    more than ``LOAD_CLEARANCE``: a piece of the load, not of the scan."""
+    out = np.zeros(len(vertices), dtype=bool)
+    for b in carried:
+        inside = np.all(np.abs(b.to_local_xy(vertices[:, :2])) <= 0.5 * b.size[:2] + CHILD_MARGIN, axis=1)
+        out |= inside & (vertices[:, 2] > b.z_min + LOAD_CLEARANCE) & (vertices[:, 2] <= b.z_max + CHILD_MARGIN)
+    return out
+
+
 def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: str,
                          carried: Sequence[GravityBox] = ()) -> PlacedObject | None:
     """The observed mesh itself as a one-link model (origin at the bottom centre of its box).
 
     Without the pieces of its load the mapper labelled with it (``carried``: the boxes of what stands on
-    it; ``observation.clean_entity_points``): gen-7373's table scan carried 71 vertices of the cup, the
-    bottle and the monitor's foot up to 7 cm above its top, the scan's top (``scan_features``) was there,
-    and the physical check lifted the cup 7 cm onto it in every run."""
+    it; ``_load_pieces``): gen-7373's table scan carried 71 vertices of the cup, the bottle and the monitor's
+    foot up to 7 cm above its top, the scan's top (``scan_features``) was there, and the physical check
+    lifted the cup 7 cm onto it in every run. The surface under the load stays: without it the bottle beside
+    the cup dropped 3 cm into the hole in both simulators."""
     if not entity.has_faces or node.box is None:
         return None
     pose = node.box.bottom_pose()
     mesh = entity.mesh().copy()
     if carried:
-        keep = clean_entity_points(np.asarray(mesh.vertices, np.float64), None, None, carried)
+        keep = ~_load_pieces(np.asarray(mesh.vertices, np.float64), carried)
         if not keep.all():
             faces = np.flatnonzero(keep[mesh.faces].all(axis=1))
             if len(faces):
