@@ -50,7 +50,6 @@ from cad_replacement.collision import observed_collisions
 from cad_replacement.geometry_cache import GeometryCache, library_store
 from cad_replacement.layout_models import MIN_LAYOUT_THICKNESS, box_model
 from cad_replacement.observation import (
-    CHILD_MARGIN,
     HANDLE_SLAB,
     MAX_FOOTPRINT_SHARE,
     MESH_SAMPLES,
@@ -250,48 +249,12 @@ def _room_center(graph: ContactGraph) -> np.ndarray | None:
     return np.mean(np.asarray(boxes, dtype=np.float64), axis=0) if boxes else None
 
 
-def carried_boxes(graph: ContactGraph, node: GraphNode) -> list[GravityBox]:
-    """The boxes of the objects the contact graph stands on ``node`` (its load)."""
-    boxes = (graph.nodes[c].box for c, e in graph.supports.items() if e.parent_id == node.id and c in graph.nodes)
-    return [b for b in boxes if b is not None]
-
-
-#: ``observed_mesh_object``: a scan's surface less than this (m) above the bottom of an object standing on it is
-#: the surface it stands on (kept: a hole there would drop the object), not a piece of the object.
-LOAD_CLEARANCE = 0.01
-
-
-def _load_pieces(vertices: np.ndarray, carried: Sequence[GravityBox]) -> np.ndarray:
-    """Per vertex: in one of the ``carried`` boxes (footprint grown by ``CHILD_MARGIN``), above its bottom by
-    more than ``LOAD_CLEARANCE``: a piece of the load, not of the scan."""
-    out = np.zeros(len(vertices), dtype=bool)
-    for b in carried:
-        inside = np.all(np.abs(b.to_local_xy(vertices[:, :2])) <= 0.5 * b.size[:2] + CHILD_MARGIN, axis=1)
-        out |= inside & (vertices[:, 2] > b.z_min + LOAD_CLEARANCE) & (vertices[:, 2] <= b.z_max + CHILD_MARGIN)
-    return out
-
-
-def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: str,
-                         carried: Sequence[GravityBox] = ()) -> PlacedObject | None:
-    """The observed mesh itself as a one-link model (origin at the bottom centre of its box).
-
-    Without the pieces of its load the mapper labelled with it (``carried``: the boxes of what stands on
-    it; ``_load_pieces``): gen-7373's table scan carried 71 vertices of the cup, the bottle and the monitor's
-    foot up to 7 cm above its top, the scan's top (``scan_features``) was there, and the physical check
-    lifted the cup 7 cm onto it in every run. The surface under the load stays: without it the bottle beside
-    the cup dropped 3 cm into the hole in both simulators."""
+def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: str) -> PlacedObject | None:
+    """The observed mesh itself as a one-link model (origin at the bottom centre of its box)."""
     if not entity.has_faces or node.box is None:
         return None
     pose = node.box.bottom_pose()
     mesh = entity.mesh().copy()
-    if carried:
-        keep = ~_load_pieces(np.asarray(mesh.vertices, np.float64), carried)
-        if not keep.all():
-            faces = np.flatnonzero(keep[mesh.faces].all(axis=1))
-            if len(faces):
-                kept = mesh.submesh([faces], append=True)
-                assert isinstance(kept, trimesh.Trimesh)  # (append=True: one mesh)
-                mesh = kept
     mesh.apply_transform(np.linalg.inv(pose))
     # collides as its hull (``observed_collisions``): convex decomposition of a partial scan is slow and
     # meaningless, and would run again at every map update; a movable one grounded, so a one-sided scan stands
@@ -372,14 +335,15 @@ class CadReplacer:
         if len(mesh.faces) == 0:
             raise ObservationError(f"{node.name!r}: mesh is empty")
         points, normals = sample_mesh(mesh, MESH_SAMPLES, 0)
-        children = carried_boxes(graph, node)
-        keep = clean_entity_points(points, normals, support_z, children)
+        children = [graph.nodes[c].box for c, e in graph.supports.items()
+                    if e.parent_id == node.id and c in graph.nodes and graph.nodes[c].box is not None]
+        keep = clean_entity_points(points, normals, support_z, children)  # type: ignore[arg-type]
         if trimmed or not keep.all():
             points, normals = points[keep], normals[keep]
         # the top hidden under what this object carries (observation.carried_footprint_points)
         top_z = float(np.quantile(points[:, 2], 0.98))
         spacing = float(np.sqrt(max(mesh.area, 1e-9) / MESH_SAMPLES))
-        extra, extra_normals = carried_footprint_points(top_z, children, spacing,
+        extra, extra_normals = carried_footprint_points(top_z, children, spacing,  # type: ignore[arg-type]
                                                         int(MAX_FOOTPRINT_SHARE * len(points)))
         if len(extra):
             points, normals = np.concatenate([points, extra]), np.concatenate([normals, extra_normals])
@@ -575,13 +539,12 @@ class CadReplacer:
                 cached = done[nid]
                 record = copy.copy(cached.record)  # notes of this scene (mount, switches) stay out of the cache
                 obj = self._placed(node, cached.replacement, parent, support)
-                load = carried_boxes(graph, node)
                 if obj is None:
-                    obj = observed_mesh_object(node, entity, parent, support, load)
+                    obj = observed_mesh_object(node, entity, parent, support)
                     record.kind = "observed_mesh"
                 elif cached.replacement is not None:
                     alternatives[obj.name] = _RankedAlternatives(self, node, cached.replacement, parent, support,
-                                                                 cached.obs, entity, load)
+                                                                 cached.obs, entity)
             if obj is None:
                 record.kind = "skipped"
                 records.append(record)
@@ -644,11 +607,9 @@ class _RankedAlternatives(Sequence[PlacedObject]):
     """
 
     def __init__(self, replacer: CadReplacer, node: GraphNode, rep: ObjectReplacement, parent: str,
-                 support: str, obs: ObjectObservation | None = None, entity: Entity | None = None,
-                 carried: Sequence[GravityBox] = ()) -> None:
+                 support: str, obs: ObjectObservation | None = None, entity: Entity | None = None) -> None:
         self._args = (replacer, node, rep, parent, support)
         self._obs = obs
-        self._carried = tuple(carried)
         self._entity = entity
         #: the object's scan, once the physical check asked for it (``scan``)
         self.built_scan: PlacedObject | None = None
@@ -690,7 +651,7 @@ class _RankedAlternatives(Sequence[PlacedObject]):
         if self._entity is None or replacer.config.method == "paper":
             return None
         if self.built_scan is None:
-            self.built_scan = observed_mesh_object(node, self._entity, parent, support, self._carried)
+            self.built_scan = observed_mesh_object(node, self._entity, parent, support)
         return self.built_scan
 
     def _judged(self, cand: CandidateResult) -> CandidateResult | None:

@@ -458,27 +458,3 @@ def test_a_round_body_or_the_test_off_keeps_a_model_turned_in_the_fit():
     for bad in (-1.0, 200.0):
         with pytest.raises(ValueError):
             CadReplacementConfig(accept_max_fit_turn_deg=bad)
-
-
-def test_a_scan_leaves_out_the_pieces_of_its_load_so_what_stands_on_it_rests_on_its_top():
-    """gen-7373's table scan carried pieces of the cup, the bottle and the monitor's foot up to 7 cm above its
-    top; the scan's top was there and the physical check lifted the cup 7 cm onto it."""
-    from cad_replacement.actions import support_spots
-    from cad_replacement.replacer import observed_mesh_object
-    from recon_core.contact_graph import GraphNode
-    from recon_core.geometry.box_fit import fit_gravity_box
-
-    top = trimesh.creation.box([1.0, 0.8, 0.03]).apply_translation([0.0, 0.0, 0.735])
-    legs = [trimesh.creation.box([0.05, 0.05, 0.72]).apply_translation([x, y, 0.36]) for x in (-0.45, 0.45)
-            for y in (-0.35, 0.35)]
-    cup_piece = trimesh.creation.box([0.06, 0.03, 0.07]).apply_translation([0.2, 0.1, 0.785])  # the cup's side
-    scan = trimesh.util.concatenate([top, *legs, cup_piece])
-    entity = Entity.from_mesh(2, "table_2", "table", scan)
-    node = GraphNode(2, "table_2", "table", "furniture", box=fit_gravity_box(np.asarray(scan.vertices)))
-    cup_box = fit_gravity_box(np.asarray(trimesh.creation.cylinder(0.04, 0.1).apply_translation(
-        [0.2, 0.12, 0.8]).vertices))
-    heights = lambda obj: sorted((s.height for s in support_spots(obj)), reverse=True)  # noqa: E731
-    as_seen = observed_mesh_object(node, entity, "floor_1", "fixed")
-    assert as_seen is not None and heights(as_seen)[0] == pytest.approx(0.82, abs=1e-3)  # the cup piece's top
-    cleaned = observed_mesh_object(node, entity, "floor_1", "fixed", [cup_box])
-    assert cleaned is not None and heights(cleaned)[0] == pytest.approx(0.75, abs=1e-3)  # the table's own top
