@@ -244,6 +244,17 @@ CHILD_MARGIN = 0.01
 MIN_KEPT_FRACTION = 0.3
 
 
+def _inside_box(points: NDArray[np.float64], box: GravityBox, margin: float = 0.0,
+                below: float | None = None) -> NDArray[np.bool_]:
+    """Per point: inside the gravity-aligned box grown by ``margin`` (its footprint, its height range; below
+    its bottom by ``below`` when given, else by ``margin`` too)."""
+    xy = box.to_local_xy(points[:, :2])
+    half = 0.5 * np.asarray(box.size[:2], dtype=np.float64) + margin
+    low = margin if below is None else below
+    return (np.all(np.abs(xy) <= half, axis=1) & (points[:, 2] >= box.z_min - low)
+            & (points[:, 2] <= box.z_max + margin))
+
+
 def clean_entity_points(
     points: NDArray[np.float64],
     normals: NDArray[np.float64] | None,
@@ -265,10 +276,7 @@ def clean_entity_points(
     if support_z is not None and normals is not None:
         keep &= ~((pts[:, 2] < support_z + SUPPORT_BAND) & (np.asarray(normals)[:, 2] > 0.8))
     for b in child_boxes:
-        local = np.abs(b.to_local_xy(pts[:, :2]))
-        inside = np.all(local <= 0.5 * b.size[:2] + CHILD_MARGIN, axis=1)
-        inside &= (pts[:, 2] >= b.z_min - 0.5 * CHILD_MARGIN) & (pts[:, 2] <= b.z_max + CHILD_MARGIN)
-        keep &= ~inside
+        keep &= ~_inside_box(pts, b, CHILD_MARGIN, below=0.5 * CHILD_MARGIN)
     if keep.sum() < max(MIN_POINTS, MIN_KEPT_FRACTION * len(pts)):
         return np.ones(len(pts), dtype=bool)
     return keep
@@ -456,14 +464,6 @@ HANDLE_LAYER = 0.3
 #: ``handle_side``: surface within this distance (m) of another entity's box counts as inside it (the two
 #: meshes of a joined surface lie up to a voxel apart).
 NEIGHBOUR_MARGIN = 0.01
-
-
-def _inside_box(points: NDArray[np.float64], box: GravityBox, margin: float = 0.0) -> NDArray[np.bool_]:
-    """Per point: inside the gravity-aligned box grown by ``margin`` (its footprint and its height range)."""
-    xy = box.to_local_xy(points[:, :2])
-    half = 0.5 * np.asarray(box.size[:2], dtype=np.float64) + margin
-    return (np.all(np.abs(xy) <= half, axis=1) & (points[:, 2] >= box.z_min - margin)
-            & (points[:, 2] <= box.z_max + margin))
 
 
 def handle_side(mesh: trimesh.Trimesh | None, box: GravityBox,
