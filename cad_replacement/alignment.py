@@ -773,8 +773,12 @@ class AlignmentProblem:
 
     # ------------------------------------------------------------------ parameters
     def scales(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per-axis scales of ``x``. Levenberg-Marquardt may try a wild step on a weakly constrained
+        axis (a round object's radius, with no anisotropy prior): the log-scales are clipped to
+        ``LOG_SCALE_GUARD`` so the trial pose stays finite (the solver then steps back) instead of
+        overflowing into points no nearest-neighbour query can answer."""
         ls = np.full(3, x[0]) if self.uniform else x[:3]
-        return np.exp(ls)
+        return np.exp(np.clip(ls, -LOG_SCALE_GUARD, LOG_SCALE_GUARD))
 
     def placement(self, x: NDArray[np.float64]) -> Placement:
         """The candidate's pose for parameters ``x`` (support constraint applied)."""
@@ -1102,6 +1106,10 @@ class AlignmentError:
     observed_share: float = float("nan")
 
 
+#: Log-scales beyond this (a factor of about 5e8) are clipped inside the fit (``AlignmentProblem.scales``).
+LOG_SCALE_GUARD = 20.0
+#: Where a nearest-surfel query puts a point that is not finite (m).
+FAR_M = 1e9
 #: Cosine above which an observed surfel's normal is compatible with a CAD sample's normal.
 SURFEL_NORMAL_COS = 0.3
 
@@ -1128,8 +1136,10 @@ def nearest_surfel(
     nearest point when no neighbour is compatible.
     """
     k = max(1, min(k, len(prepared.surfel_points)))
-    _, nn = prepared.tree.query(y, k=k)
-    nn = nn.reshape(len(y), k)
+    # a point far out (a wild trial step of the fit) may have no neighbour: the tree answers n (one past
+    # the end); one that is not finite it refuses: it is queried as a far point
+    _, nn = prepared.tree.query(np.nan_to_num(y, nan=FAR_M, posinf=FAR_M, neginf=-FAR_M), k=k)
+    nn = np.minimum(nn.reshape(len(y), k), len(prepared.surfel_points) - 1)
     gap = _surfel_gap(prepared, y[:, None, :], nn)
     compat = np.einsum("nkj,nj->nk", prepared.surfel_normals[nn], normals) > SURFEL_NORMAL_COS
     gap = np.where(compat, gap, np.inf)
@@ -1147,7 +1157,8 @@ def surfel_distance(
     if normals is not None:
         nn = nearest_surfel(prepared, y, normals, k=8)
     else:
-        _, nn = prepared.tree.query(y)
+        _, nn = prepared.tree.query(np.nan_to_num(y, nan=FAR_M, posinf=FAR_M, neginf=-FAR_M))
+        nn = np.minimum(nn, len(prepared.surfel_points) - 1)
     e = prepared.surfel_points[nn] - y
     no = prepared.surfel_normals[nn]
     en = np.einsum("ij,ij->i", e, no)

@@ -69,3 +69,24 @@ def test_score_without_jacobian_equals_full_evaluation() -> None:
     r_light = prob2._evaluate(x, with_jac=False)[0]
     np.testing.assert_array_equal(r_full, r_light)
     assert prob.score(x) == score_light
+
+
+def test_a_wild_trial_step_gives_finite_residuals_not_an_index_error() -> None:
+    """Levenberg-Marquardt may try a huge step on a weakly constrained scale (a round object's radius seen
+    over a quarter turn, no anisotropy prior): exp(800) overflowed to infinite points, and the nearest-
+    surfel query answered them with an index one past the end (IndexError in a saved-map run)."""
+    from cad_replacement.alignment import LOG_SCALE_GUARD, nearest_surfel
+
+    prob, x = _problem("bottle", 1, True, True)
+    for wild in (800.0, -800.0):
+        xw = x.copy()
+        xw[0] = wild
+        r, jac = prob._evaluate(xw)
+        assert np.all(np.isfinite(r)) and jac is not None and np.all(np.isfinite(jac))
+        assert prob.scales(xw)[0] == pytest.approx(np.exp(np.sign(wild) * LOG_SCALE_GUARD))
+    prepared = prob.prepared
+    assert prepared is not None
+    bad = np.array([[np.nan, 0.0, 0.0], [np.inf, 1.0, 0.0]])
+    with np.errstate(invalid="ignore"):  # its distances are NaN; its index must still be one
+        nn = nearest_surfel(prepared, bad, np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]))
+    assert np.all((nn >= 0) & (nn < len(prepared.surfel_points)))
