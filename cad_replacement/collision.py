@@ -381,13 +381,13 @@ def _surface_points(mesh: trimesh.Trimesh, spacing: float) -> NDArray[np.float64
     return np.r_[v, np.asarray(samples, np.float64)]
 
 
-def _cell_boxes(mesh: trimesh.Trimesh, grounded: bool) -> tuple[CollisionShape, ...]:
+def _cell_boxes(mesh: trimesh.Trimesh, grounded: bool, ground_z: float) -> tuple[CollisionShape, ...]:
     """A large observed surface as boxes over the grid cells it occupies (convex pieces that follow a
     concave scan: a table's top and legs, not their hull, which swallowed the chairs under it).
 
     Each occupied cell gives the box of its surface points (at least ``OBSERVED_MIN_THICKNESS`` thick);
-    ``grounded``: one box per occupied column, from the mesh's lowest point to the column's top (a
-    movable object kept as its scan rests on its whole footprint). Boxes overlap by at most the
+    ``grounded``: one box per occupied column, from ``ground_z`` (at most the mesh's lowest point) to the
+    column's top (a movable object kept as its scan rests on its whole footprint). Boxes overlap by at most the
     thickening, so their volumes and inertias add up."""
     lo = np.asarray(mesh.bounds[0], np.float64)
     cell = OBSERVED_CELL
@@ -409,8 +409,8 @@ def _cell_boxes(mesh: trimesh.Trimesh, grounded: bool) -> tuple[CollisionShape, 
         c_lo = lo + uniq[k] * cell
         b_lo = np.maximum(p.min(axis=0), c_lo)
         b_hi = np.minimum(p.max(axis=0), c_lo + cell)
-        if grounded:  # the column: from the lowest point to its highest
-            b_lo[2], b_hi[2] = lo[2], p[:, 2].max()
+        if grounded:  # the column: from the ground to its highest point
+            b_lo[2], b_hi[2] = ground_z, p[:, 2].max()
         # thin (a face seen edge-on or flat): thickened about its middle, a column upwards only (its
         # bottom stays on the ground it rests on)
         pad = np.maximum(OBSERVED_MIN_THICKNESS - (b_hi - b_lo), 0.0) / 2.0
@@ -429,31 +429,35 @@ def _grounded(mesh: trimesh.Trimesh, z: float) -> trimesh.Trimesh:
     return trimesh.Trimesh(np.r_[v, low], np.asarray(mesh.faces), process=False)
 
 
-def observed_collisions(mesh: trimesh.Trimesh, grounded: bool = False) -> tuple[CollisionShape, ...]:
+def observed_collisions(mesh: trimesh.Trimesh, grounded: bool = False,
+                        ground_z: float | None = None) -> tuple[CollisionShape, ...]:
     """Collision shapes of an observed mesh: its convex hull (small), boxes over the grid cells its
     surface occupies (large: ``_cell_boxes``), or its bounding box thickened to
     ``OBSERVED_MIN_THICKNESS`` when it is flat.
 
-    ``grounded``: every hull reaches down to the mesh's lowest point (the hull of its vertices and
-    of their drops to that height). A scan seen from one side, a chair's front legs and seat, would
-    otherwise stand on an edge and tip over; a grounded convex piece rests on a footprint that holds
-    its own centre of mass, so an object kept as its observed mesh stays where it was seen."""
+    ``grounded``: every hull reaches down to the mesh's lowest point, or to ``ground_z`` when that is
+    lower (the bottom of the object's box, which the scan did not reach: ``PlacedObject.resting_height``);
+    the hull of its vertices and of their drops to that height. A scan seen from one side, a chair's front
+    legs and seat, would otherwise stand on an edge and tip over; a grounded convex piece rests on a
+    footprint that holds its own centre of mass, so an object kept as its observed mesh stays where it
+    was seen."""
     if len(mesh.faces) == 0:
         return ()
     lo, hi = np.asarray(mesh.bounds[0], np.float64), np.asarray(mesh.bounds[1], np.float64)
     pieces: list[trimesh.Trimesh] = []
     # a movable scan is cut into cells from a smaller size on: the pieces of it inside another object
     # (``observed_physics``) can then go without the rest
+    ground = float(lo[2]) if ground_z is None else min(float(lo[2]), float(ground_z))
     limit = min(OBSERVED_HULL_MAX_EXTENT, OBSERVED_GROUNDED_HULL_MAX_EXTENT) if grounded else OBSERVED_HULL_MAX_EXTENT
     if float(np.max(hi - lo)) <= limit:
         try:
-            hull = (_grounded(mesh, float(lo[2])) if grounded else mesh).convex_hull
+            hull = (_grounded(mesh, ground) if grounded else mesh).convex_hull
             if len(hull.faces) and hull.volume > 1e-12:
                 pieces = [hull]
         except Exception:  # coplanar points: no solid hull
             pieces = []
     else:
-        return _cell_boxes(mesh, grounded)
+        return _cell_boxes(mesh, grounded, ground)
     if pieces:
         return tuple(mesh_shape(p) for p in pieces)
     pad = np.maximum(OBSERVED_MIN_THICKNESS - (hi - lo), 0.0) / 2.0

@@ -418,9 +418,7 @@ def separate_neighbours(scene: ReplacedScene, solids: dict[str, ObjectSolids], m
 
 
 def _lowest(obj: PlacedObject) -> float:
-    lows = [float((np.asarray(m.vertices) @ obj.pose[:3, :3].T + obj.pose[:3, 3])[:, 2].min())
-            for m in obj.model.posed_link_meshes(obj.joint_values).values() if len(m.vertices)]
-    return min(lows) if lows else float(obj.pose[2, 3])
+    return obj.resting_height()
 
 
 def _rest_like(trial: PlacedObject, reference: PlacedObject) -> None:

@@ -259,7 +259,9 @@ def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: 
     # collides as its hull (``observed_collisions``): convex decomposition of a partial scan is slow and
     # meaningless, and would run again at every map update; a movable one grounded, so a one-sided scan stands
     grounded = node.movable  # a fixed one (a table) keeps the space under it free
-    link = Link("body", mesh, OBSERVED_RGBA, collisions=lambda: observed_collisions(mesh, grounded=grounded))
+    # grounded to the box's bottom (its origin) when the scan does not reach it (``PlacedObject.resting_height``)
+    link = Link("body", mesh, OBSERVED_RGBA,
+                collisions=lambda: observed_collisions(mesh, grounded=grounded, ground_z=0.0))
     model = CadModel(node.class_name, f"observed_{node.id}", (link,), (), scan_features(mesh),
                      source="observed")
     return PlacedObject(node.name, node.class_name, model, pose, parent=parent, support=support,
@@ -267,12 +269,8 @@ def observed_mesh_object(node: GraphNode, entity: Entity, parent: str, support: 
 
 
 def rest_on(obj: PlacedObject, z: float) -> None:
-    """Move ``obj`` vertically so its lowest point (at its joint values) is at height ``z``."""
-    meshes = obj.model.posed_link_meshes(obj.joint_values)
-    lows = [float((np.asarray(m.vertices) @ obj.pose[:3, :3].T)[:, 2].min()) for m in meshes.values()
-            if len(m.vertices)]
-    if lows:
-        obj.pose[2, 3] = z - min(lows)
+    """Move ``obj`` vertically so the bottom it rests with (``PlacedObject.resting_height``) is at height ``z``."""
+    obj.pose[2, 3] += z - obj.resting_height()
 
 
 class CadReplacer:

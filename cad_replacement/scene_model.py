@@ -67,6 +67,21 @@ class PlacedObject:
         """Pose of every link of the object in the map frame at its joint values."""
         return {name: self.pose @ t for name, t in self.model.link_poses(self.joint_values).items()}
 
+    def resting_height(self) -> float:
+        """Height (map) of the bottom the object rests with: its lowest point at its joint values.
+
+        An object kept as its scan (``model.source == "observed"``, origin at the bottom of its mapped
+        box) rests with its box's bottom when the scan does not reach down to it: the box was grown to
+        the support below (scene_graph), and what the camera did not see of the object's foot (a cabinet's
+        lower front behind a chair) is unseen, not absent. Resting the lowest *seen* point on the support
+        instead sank such a scan by the hidden height (24 cm), and dropped what stands on it with it."""
+        lows = [float((np.asarray(m.vertices) @ self.pose[:3, :3].T + self.pose[:3, 3])[:, 2].min())
+                for m in self.model.posed_link_meshes(self.joint_values).values() if len(m.vertices)]
+        lowest = min(lows) if lows else float(self.pose[2, 3])
+        if self.model.source == "observed":
+            return min(lowest, float(self.pose[2, 3]))
+        return lowest
+
 
 @dataclass(eq=False)
 class ReplacedScene:

@@ -181,6 +181,26 @@ def find_support_surfaces(
 SCAN_TOP_BAND = 0.02
 
 
+def scan_top_height(mesh: trimesh.Trimesh, highest: float) -> float:
+    """Height of a scan's top: the highest level holding ``SUPPORT_MIN_AREA`` of upward faces within
+    ``SCAN_TOP_BAND`` (``highest``, the scan's highest point, when no level does).
+
+    A table's scan carries pieces of what stood on it (a microwave's foot, a book's edge) a few
+    centimetres above its top; the highest point put everything on the table onto them."""
+    up = mesh.face_normals[:, 2] > SUPPORT_NORMAL_COS
+    if not np.any(up):
+        return highest
+    z = np.asarray(mesh.triangles_center[up, 2], np.float64)
+    area = np.asarray(mesh.area_faces[up], np.float64)
+    order = np.argsort(z)
+    z, area = z[order], area[order]
+    cum = np.r_[0.0, np.cumsum(area)]
+    start = np.searchsorted(z, z - SCAN_TOP_BAND, side="left")  # faces within the band below each face
+    held = cum[1:] - cum[start]
+    levels = np.flatnonzero(held >= SUPPORT_MIN_AREA)
+    return float(z[levels[-1]]) if len(levels) else highest
+
+
 def scan_features(mesh: trimesh.Trimesh, *, seed: int = 0) -> ModelFeatures:
     """Box and support surfaces of an object kept as its scan (given with z up, origin at its bottom).
 
@@ -196,9 +216,10 @@ def scan_features(mesh: trimesh.Trimesh, *, seed: int = 0) -> ModelFeatures:
     if len(mesh.faces) == 0:
         return box
     lo, hi = box.box_center - 0.5 * box.box_size, box.box_center + 0.5 * box.box_size
-    top = SupportSurface(height=float(hi[2]), polygon=np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]],
+    top_z = scan_top_height(mesh, float(hi[2]))
+    top = SupportSurface(height=top_z, polygon=np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]],
                                                                 [lo[0], hi[1]]]))
-    inner = [s for s in find_support_surfaces(mesh, seed=seed) if s.height < hi[2] - SCAN_TOP_BAND]
+    inner = [s for s in find_support_surfaces(mesh, seed=seed) if s.height < top_z - SCAN_TOP_BAND]
     return dataclasses.replace(box, support_surfaces=(top, *sorted(inner, key=lambda s: -s.height)))
 
 

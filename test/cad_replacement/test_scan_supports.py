@@ -145,3 +145,76 @@ def test_a_fixed_scan_with_nothing_on_it_keeps_its_pieces_beside_one_that_drops(
     changes = settle_observed([fridge, chair], patch=False)
     assert "fridge_5" not in changes and len(fridge.model.links[0].collisions or ()) == pieces
     assert settle_observed([fridge], patch=False) == {}  # alone: no piece of anything is built
+
+
+def _observed_on_the_floor(nid: int, name: str, class_name: str, mesh: trimesh.Trimesh, movable: bool,
+                           parent: str) -> PlacedObject:
+    """A scan whose mapped box the graph grew down to the floor (z = 0) below what the camera saw of it."""
+    from cad_replacement.replacer import observed_mesh_object
+
+    v = np.asarray(mesh.vertices)
+    foot = np.c_[v[:, :2], np.zeros(len(v))]
+    node = GraphNode(nid, name, class_name, "object", box=fit_gravity_box(np.r_[v, foot]), movable=movable)
+    obj = observed_mesh_object(node, Entity.from_mesh(nid, name, class_name, mesh), parent,
+                               "floating" if movable else "fixed")
+    assert obj is not None
+    return obj
+
+
+def _floor() -> PlacedObject:
+    floor_pose = np.eye(4)
+    floor_pose[2, 3] = -0.1  # a box model's origin is its bottom centre: the floor's top at z = 0
+    return PlacedObject("floor", "floor", box_model("floor", [3.0, 3.0, 0.1]), floor_pose)
+
+
+def test_a_scan_whose_foot_was_not_seen_stays_where_it_was_seen_with_what_stands_on_it():
+    """gen-7373's corner cabinet: its lower front (24 cm) hidden behind a chair. Resting its lowest *seen*
+    point on the floor sank the scan by 24 cm and the cup on its top with it."""
+    seen = trimesh.creation.box([0.55, 0.8, 0.76]).apply_translation([0.0, 0.0, 0.24 + 0.38])  # 0.24-1.00 m
+    cabinet = _observed_on_the_floor(1, "cabinet_1", "cabinet", seen, False, parent="floor")
+    cup = _observed(2, "cup_2", "cup", trimesh.creation.cylinder(radius=0.04, height=0.1).apply_translation(
+        [0.1, 0.0, 1.05]), True, parent="cabinet_1")
+    assert cabinet.resting_height() == pytest.approx(0.0, abs=1e-9)  # its box's bottom, below the scan
+    assert _bottom(cabinet) == pytest.approx(0.24, abs=1e-6)
+    gaps = snap_to_supports(ReplacedScene("corner", [_floor(), cabinet, cup]))
+    assert gaps["cabinet_1"] < 1e-6 and _bottom(cabinet) == pytest.approx(0.24, abs=1e-6)
+    assert _bottom(cup) == pytest.approx(1.0, abs=1e-6)
+    # a CAD model (or a scan that reaches its box's bottom) still rests with its lowest point
+    whole = _observed(3, "cabinet_3", "cabinet", trimesh.creation.box([0.5, 0.5, 0.8]).apply_translation(
+        [2.0, 0.0, 0.5]), False, parent="floor")
+    assert whole.resting_height() == pytest.approx(0.1, abs=1e-6)
+
+
+@pytest.mark.parametrize("check", [check_pybullet, check_mujoco], ids=["pybullet", "mujoco"])
+def test_a_movable_scan_seen_without_its_legs_stands_on_the_floor_where_it_was_seen(tmp_path, check):
+    seat_and_back = as_mesh(trimesh.util.concatenate([
+        trimesh.creation.box([0.45, 0.45, 0.05]).apply_translation([0.0, 0.0, 0.45]),
+        trimesh.creation.box([0.45, 0.05, 0.45]).apply_translation([0.0, 0.2, 0.7]),
+    ]))  # 0.425-0.925 m: the legs below the seat unmapped
+    chair = _observed_on_the_floor(1, "chair_1", "chair", seat_and_back, True, parent="floor")
+    scene = ReplacedScene("legless", [_floor(), chair])
+    snap_to_supports(scene)
+    assert _bottom(chair) == pytest.approx(0.425, abs=1e-6)  # not dropped onto the floor
+    shapes = chair.model.links[0].collisions or ()
+    lows = [float((np.asarray(s.mesh.vertices) @ s.origin[:3, :3].T + s.origin[:3, 3])[:, 2].min())
+            if s.mesh is not None else float(s.origin[2, 3] - s.size[2] / 2) for s in shapes]
+    assert shapes and min(lows) == pytest.approx(0.0, abs=1e-6)  # its collision reaches its box's bottom (link frame)
+    report = check(export_scene(scene, tmp_path / "scene", glb=False).folder, seconds=2.0)
+    assert report.loaded and not report.errors
+    assert report.still_fraction == 1.0, report.displacement
+
+
+def test_a_scans_top_is_its_highest_level_not_a_piece_of_what_stood_on_it():
+    """gen-5151's table scan carried 2-5 cm pieces of the microwave and books on it up to 11 cm above its top:
+    its highest point put them all 11 cm up."""
+    top = trimesh.creation.box([0.8, 0.6, 0.03]).apply_translation([0.0, 0.0, 0.75 - 0.015])
+    legs = [trimesh.creation.box([0.04, 0.04, 0.72]).apply_translation([x, y, 0.36])
+            for x in (-0.36, 0.36) for y in (-0.26, 0.26)]
+    junk = [trimesh.creation.box([0.05, 0.04, h]).apply_translation([x, 0.1, 0.75 + h / 2])
+            for x, h in ((-0.2, 0.11), (0.1, 0.06), (0.25, 0.03))]
+    feats = scan_features(as_mesh(trimesh.util.concatenate([top, *legs, *junk])))
+    assert feats.box_size[2] == pytest.approx(0.86, abs=1e-6)
+    assert feats.support_surfaces[0].height == pytest.approx(0.75, abs=1e-6)
+    # a scan with nothing flat enough on it keeps its highest point as its top
+    ball = scan_features(trimesh.creation.icosphere(radius=0.1))
+    assert ball.support_surfaces[0].height == pytest.approx(0.1, abs=1e-3)
