@@ -166,6 +166,27 @@ def turned_in_fit(candidate: CandidateResult, cfg: CadReplacementConfig, round_b
     return f"turned {turn:.0f} degrees in the fit (> {limit:g}) from the orientation it was matched in"
 
 
+def invented_surface(candidate: CandidateResult, limit: float, cfg: CadReplacementConfig) -> str:
+    """Why ``candidate`` shows more surface than the camera saw of the object ("" when it does not, or with
+    the test off): most of its surface in view is unobserved (``view_coverage`` below
+    ``accept_invented_coverage``) and that surface lies far from anything observed (``ae_model`` above
+    ``accept_invented_ae_ratio`` x ``limit``).
+
+    Either alone is normal: a half-seen fridge's model is mostly unobserved but close to the seen door,
+    a chair's legs are far from the mapped seat but a small part of it. Both at once mean the model's
+    visible extent is a guess the observation does not support (a corner cabinet seen 0.75 of 0.88 m
+    wide behind a chair, fitted narrower than its seen front and 12-15 cm off), and the scan is the
+    better description (issue 22, item 5)."""
+    ratio = cfg.accept_invented_ae_ratio
+    ae = candidate.ae
+    if ratio <= 0.0 or not (math.isfinite(ae.ae_model) and math.isfinite(ae.view_coverage)):
+        return ""
+    if ae.view_coverage >= cfg.accept_invented_coverage or ae.ae_model <= ratio * limit:
+        return ""
+    return (f"model surface in view {1000 * ae.ae_model:.0f} mm from the observation on average (> {ratio:g} x limit "
+            f"{1000 * limit:.0f} mm) with {100 * ae.view_coverage:.0f} % of it observed")
+
+
 def size_spread(chosen: CandidateResult, others: list[CandidateResult],
                 cfg: CadReplacementConfig) -> tuple[float, CandidateResult | None]:
     """Largest relative difference of an extent between ``chosen`` and the fully fitted ``others``
@@ -182,9 +203,19 @@ def size_spread(chosen: CandidateResult, others: list[CandidateResult],
 
 def rejection(candidate: CandidateResult, limit: float, cfg: CadReplacementConfig,
               class_sizes: ClassSizes | None = None, round_body: bool = False) -> str:
-    """Why ``candidate`` may not stand for the observation ("" when it may): its fit (AE, coverage), a turn
-    in the fit (``turned_in_fit``; not for a ``round_body``) and, with ``class_sizes``, a fitted size no
-    model of its class has (``outside_class_sizes``)."""
+    """Why ``candidate`` may not stand for the observation ("" when it may): its fit (``fit_rejection``),
+    surface it shows beyond what was seen (``invented_surface``) and, with ``class_sizes``, a fitted size
+    no model of its class has (``outside_class_sizes``)."""
+    return (fit_rejection(candidate, limit, cfg, round_body) or invented_surface(candidate, limit, cfg)
+            or outside_class_sizes(candidate, class_sizes, cfg.accept_class_size_factor))
+
+
+def fit_rejection(candidate: CandidateResult, limit: float, cfg: CadReplacementConfig,
+                  round_body: bool = False) -> str:
+    """Why ``candidate`` does not explain the observation ("" when it does): its fit (AE, coverage) or a
+    turn in the fit (``turned_in_fit``; not for a ``round_body``). A model rejected only for its size or
+    for surface beyond what was seen still explains what was seen, so it still takes part in the
+    size-agreement test (``judge``)."""
     if candidate.stage not in ("full", "placed"):
         return "not fully fitted"
     ae = candidate.ae
@@ -195,8 +226,7 @@ def rejection(candidate: CandidateResult, limit: float, cfg: CadReplacementConfi
     cov = ae.view_coverage
     if math.isfinite(cov) and cov < cfg.accept_min_coverage:
         return f"coverage {100 * cov:.0f} % < {100 * cfg.accept_min_coverage:.0f} % of the visible model surface"
-    return (turned_in_fit(candidate, cfg, round_body)
-            or outside_class_sizes(candidate, class_sizes, cfg.accept_class_size_factor))
+    return turned_in_fit(candidate, cfg, round_body)
 
 
 @dataclass
@@ -240,16 +270,16 @@ def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplac
         first = other if wins else own
     elif own is not None:
         first = own
-    fit_rejections = [rejection(c, limit, cfg, round_body=round_body) if cfg.accept_gate
+    fit_rejections = [fit_rejection(c, limit, cfg, round_body=round_body) if cfg.accept_gate
                       else ("" if c.stage == "full" else "not fully fitted")
                       for c in cands]
-    sizes = class_sizes if cfg.accept_gate else None
-    rejections = [why or outside_class_sizes(c, sizes, cfg.accept_class_size_factor)
+    rejections = [(why or invented_surface(c, limit, cfg)
+                   or outside_class_sizes(c, class_sizes, cfg.accept_class_size_factor)) if cfg.accept_gate else why
                   for c, why in zip(cands, fit_rejections, strict=True)]
     ok = {id(c) for c, why in zip(cands, rejections, strict=True) if not why}
     # Models that explain the observation, whatever their size: a model of a size no model of its class
-    # has is not kept, but that it fits as well as the chosen one still says the observation leaves
-    # the size open (the size-agreement test below).
+    # has, or one showing surface far beyond what was seen, is not kept, but that it fits what was seen as
+    # well as the chosen one still says the observation leaves the size open (the size-agreement test below).
     fits = {id(c) for c, why in zip(cands, fit_rejections, strict=True) if not why}
     ordered = ([first] if first is not None else []) + [c for c in cands if c is not first]
     # Without a margin win the detected class keeps the object: another class's model is then no
@@ -285,5 +315,6 @@ def judge(rep: ObjectReplacement, observation: ObjectObservation, cfg: CadReplac
     return verdict
 
 
-__all__ = ["ClassSizes", "Verdict", "ae_limit", "class_size_range", "fit_figures", "fit_turn", "fitted_extents",
-           "judge", "outside_class_sizes", "placed_error", "rejection", "size_spread", "turned_in_fit"]
+__all__ = ["ClassSizes", "Verdict", "ae_limit", "class_size_range", "fit_figures", "fit_rejection", "fit_turn",
+           "fitted_extents", "invented_surface", "judge", "outside_class_sizes", "placed_error", "rejection",
+           "size_spread", "turned_in_fit"]
