@@ -185,7 +185,7 @@ def test_what_rests_on_an_observed_mesh_gets_a_support_patch_where_the_scan_has_
         [0.0, 0.0, 0.8]), True, parent="table_2")
     cup.pose[2, 3] = 0.75  # placed on the top's height
     changes = settle_observed([table, cup], drop=False)
-    assert changes == {"table_2": {"dropped": 0, "patches": 1}}
+    assert changes == {"table_2": {"dropped": 0, "clipped": 0, "patches": 1}}
     patch = _world_boxes(table)[-1]
     assert patch.bounds[1][2] == pytest.approx(0.75, abs=1e-6)
     assert np.all(patch.bounds[0][:2] <= [-0.039, -0.039]) and np.all(patch.bounds[1][:2] >= [0.039, 0.039])
