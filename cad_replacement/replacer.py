@@ -740,7 +740,7 @@ def _note_settled(records: list[ReplacementRecord], changes: Mapping[str, Mappin
     for name, change in changes.items():
         rec = by_name.get(name)
         parts = [f"{change['dropped']} pieces inside other objects dropped" if change["dropped"] else "",
-                 f"{change['clipped']} pieces cut off under what rests on it" if change.get("clipped") else "",
+                 f"{change['clipped']} pieces cut where they met another object" if change.get("clipped") else "",
                  f"{change['patches']} support patches" if change["patches"] else ""]
         note = ", ".join(p for p in parts if p)
         if rec is not None and note:

@@ -261,3 +261,27 @@ def test_a_scan_piece_reaching_into_the_corner_of_what_stands_on_it_is_cut_at_it
     assert changes["cabinet_1"]["clipped"] == 1, changes
     report = check_pybullet(export_scene(scene, tmp_path / "scene", glb=False).folder, seconds=2.0)
     assert report.loaded and report.still_fraction == 1.0, report.displacement
+
+
+def test_a_movable_scan_reaching_a_few_millimetres_into_what_is_above_it_is_cut_below_it():
+    """The 7-Scenes kitchen (stride 4): a chair pushed under a table, its seat's cell boxes 9 mm into the
+    table's apron (too shallow for the probe test, 1 cm); PyBullet pushed the chair 2.4 cm out."""
+    from cad_replacement.observed_physics import CLIP_TOLERANCE, _cleared_below, _PlacedPieces
+
+    table = _observed(1, "table_1", "table", as_mesh(trimesh.util.concatenate([
+        trimesh.creation.box([1.2, 0.8, 0.04]).apply_translation([0.0, 0.0, 0.73]),    # top
+        trimesh.creation.box([1.2, 0.04, 0.1]).apply_translation([0.0, -0.38, 0.66]),  # apron
+        *[trimesh.creation.box([0.05, 0.05, 0.61]).apply_translation([x, y, 0.305])
+          for x in (-0.57, 0.57) for y in (-0.37, 0.37)]])), False, parent="floor")
+    seat = trimesh.creation.box([0.45, 0.45, 0.05]).apply_translation([0.0, -0.45, 0.594])  # top 9 mm into the apron
+    chair = _observed(2, "chair_2", "chair", seat, True, parent="floor")
+    pieces = list(chair.model.links[0].collisions or ())
+    out, clipped, gone = _cleared_below(chair, pieces, [_PlacedPieces(table)])
+    assert clipped >= 1 and gone == 0 and len(out) == len(pieces)
+    tops = [float(s.origin[2, 3] + 0.5 * s.size[2]) for s in out if s.kind == "box"]
+    assert max(tops) <= 0.61 - CLIP_TOLERANCE + 1e-9  # below the apron's bottom (0.61 m)
+    # a piece reaching deeper is the probe test's (dropped there), one clear of the table is kept as it is
+    clear = _observed(3, "chair_3", "chair", trimesh.creation.box([0.45, 0.45, 0.05]).apply_translation(
+        [0.0, -1.2, 0.5]), True, parent="floor")
+    kept = list(clear.model.links[0].collisions or ())
+    assert _cleared_below(clear, kept, [_PlacedPieces(table)]) == (kept, 0, 0)
