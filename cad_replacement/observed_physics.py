@@ -20,7 +20,7 @@ object resting on it, at the height the child ended up.
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -277,6 +277,21 @@ def _cleared_below(obj: PlacedObject, shapes: list[CollisionShape], others: Sequ
         return shapes, 0, 0
     b_lo = np.array([b[0] for b in boxes])
     b_hi = np.array([b[1] for b in boxes])
+
+    def below_what_is_above(lo: NDArray[np.float64], hi: NDArray[np.float64]) -> float:
+        over = np.all((b_lo[:, :2] < hi[:2] - CLIP_TOLERANCE) & (lo[:2] + CLIP_TOLERANCE < b_hi[:, :2]), axis=1)
+        into = over & (b_lo[:, 2] < hi[2]) & (b_lo[:, 2] > hi[2] - PIECE_DEPTH) & (b_hi[:, 2] > hi[2])
+        return float(b_lo[into, 2].min()) - CLIP_TOLERANCE if np.any(into) else float(hi[2])
+
+    return _lowered_tops(shapes, below_what_is_above)
+
+
+def _lowered_tops(shapes: list[CollisionShape],
+                  top_of: Callable[[NDArray[np.float64], NDArray[np.float64]], float],
+                  ) -> tuple[list[CollisionShape], int, int]:
+    """Each axis-aligned box piece (link frame ``lo``..``hi``) ends at ``top_of(lo, hi)`` where that is lower
+    than its top; one left thinner than ``CLIP_MIN_THICKNESS`` goes; other pieces stay. Returns the pieces, how
+    many were clipped and how many went; never none of them (then ``shapes`` unchanged)."""
     out: list[CollisionShape] = []
     clipped = gone = 0
     for shape in shapes:
@@ -286,13 +301,10 @@ def _cleared_below(obj: PlacedObject, shapes: list[CollisionShape], others: Sequ
             continue
         half = 0.5 * np.asarray(shape.size, np.float64)
         lo, hi = origin[:3, 3] - half, origin[:3, 3] + half
-        over = np.all((b_lo[:, :2] < hi[:2] - CLIP_TOLERANCE) & (lo[:2] + CLIP_TOLERANCE < b_hi[:, :2]), axis=1)
-        into = over & (b_lo[:, 2] < hi[2]) & (b_lo[:, 2] > hi[2] - PIECE_DEPTH) & (b_hi[:, 2] > hi[2])
-        if not np.any(into):
+        top = min(float(hi[2]), top_of(lo, hi))
+        if top >= hi[2]:
             out.append(shape)
-            continue
-        top = float(b_lo[into, 2].min()) - CLIP_TOLERANCE
-        if top - lo[2] >= CLIP_MIN_THICKNESS:
+        elif top - lo[2] >= CLIP_MIN_THICKNESS:
             out.append(box_shape(lo, [hi[0], hi[1], top]))
             clipped += 1
         else:
@@ -327,44 +339,27 @@ def _clipped_under(parent: PlacedObject, shapes: list[CollisionShape], children:
     feet = [f for f in (_footprint_box(parent, c) for c in children) if f is not None]
     if not feet:
         return shapes, 0, 0
-    out: list[CollisionShape] = []
-    clipped = gone = 0
-    for shape in shapes:
-        origin = np.asarray(shape.origin, np.float64)
-        if shape.kind != "box" or not np.allclose(origin[:3, :3], np.eye(3)):
-            out.append(shape)
-            continue
-        half = 0.5 * np.asarray(shape.size, np.float64)
-        lo, hi = origin[:3, 3] - half, origin[:3, 3] + half
-        top = hi[2]
+
+    def at_the_bottom_of_what_rests(lo: NDArray[np.float64], hi: NDArray[np.float64]) -> float:
+        top = float(hi[2])
         for f_lo, f_hi in feet:
             over = bool(np.all(lo[:2] < f_hi[:2]) and np.all(f_lo[:2] < hi[:2]))
             # under the child and ending inside it: a piece rising past the child's top (a side panel
             # beside a book on an inner shelf) is the scan's own
             if over and top > f_lo[2] + CLIP_TOLERANCE and hi[2] <= f_hi[2] + CLIP_TOLERANCE:
                 top = min(top, float(f_lo[2]))
-        if top >= hi[2]:
-            out.append(shape)
-        elif top - lo[2] >= CLIP_MIN_THICKNESS:
-            out.append(box_shape(lo, [hi[0], hi[1], top]))
-            clipped += 1
-        else:
-            gone += 1
-    if not out:  # never all of them (as the probe test above)
-        return shapes, 0, 0
-    return out, clipped, gone
+        return top
+
+    return _lowered_tops(shapes, at_the_bottom_of_what_rests)
 
 
 def _patch(parent: PlacedObject, child: PlacedObject) -> CollisionShape | None:
     """A thin box in ``parent``'s link frame under ``child``'s footprint, its top where the child's
     lowest point is."""
-    meshes = [m for m in child.model.posed_link_meshes(child.joint_values).values() if len(m.vertices)]
-    if not meshes:
+    foot = _footprint_box(parent, child)
+    if foot is None:
         return None
-    v = np.concatenate([np.asarray(m.vertices, np.float64) for m in meshes]) @ child.pose[:3, :3].T + child.pose[:3, 3]
-    inv = np.linalg.inv(parent.pose)
-    local = v @ inv[:3, :3].T + inv[:3, 3]
-    lo, hi = local.min(axis=0), local.max(axis=0)
+    lo, hi = foot
     bottom = float(lo[2])
     return box_shape([lo[0], lo[1], bottom - PATCH_THICKNESS], [hi[0], hi[1], bottom])
 
