@@ -315,6 +315,8 @@ class MapperNode(Node):
         self.info: CameraInfo | None = None
         self.queue: collections.deque[tuple[Image, Image, float]] = collections.deque()
         self.pending: list[_Pending] = []
+        #: A frame taken off the queue by the processing step and not yet integrated, held or pending (0 or 1).
+        self._in_hand = 0
         self.counters = collections.Counter()
         self._drop_warned_at = -1e9
         #: depth segmentations started ahead for queued frames (`_segment_queued`): id of the depth message ->
@@ -524,6 +526,16 @@ class MapperNode(Node):
         self._maybe_checkpoint()
 
     def _process_locked(self) -> None:
+        # `status()` reads the queue, the pending labels and the map from another thread without the map's lock:
+        # the frame this step takes off the queue counts as queued until the step is over, or a status read
+        # in between saw nothing left to do (a keyframe counted, not yet pending: a settled run that was not)
+        self._in_hand = 1 if (self.queue or self._released) else 0
+        try:
+            self._process_step()
+        finally:
+            self._in_hand = 0
+
+    def _process_step(self) -> None:
         self._collect_segmentations()
         if self.in_order and self.pending:
             return
@@ -605,7 +617,7 @@ class MapperNode(Node):
             return  # the map restarted in the gravity-aligned frame: this frame is mapped again with the window's
         self._route(frame, color_msg, depth_msg)
 
-    #: The most one step of the processing loop adds to a frame's wait (s): see `_process_locked`.
+    #: The most one step of the processing loop adds to a frame's wait (s): see `_process_step`.
     WAIT_STEP_S = 0.05
     #: A gravity window whose stream pauses for this many tf_wait_s decides on the frames read.
     HOLD_IDLE_FACTOR = 4.0
@@ -623,12 +635,13 @@ class MapperNode(Node):
                 self.mapper.mark_keyframe(frame)
             elif self.seg_client.service_is_ready():
                 self._seg_seen = True
-                self.mapper.mark_keyframe(frame)
                 req = SegmentImage.Request(color=color_msg, has_depth=True, depth=depth_msg)
                 future = self.seg_client.call_async(req)
                 future.add_done_callback(lambda _f: self._wake.set())  # the answer wakes the mapping loop
                 self.pending.append(_Pending(frame, color_msg, depth_msg, future,
                                              time.monotonic(), ahead or segment_ahead(self.mapper, frame)))
+                # counted once it is pending (`_process_locked`): keyframes never run ahead of pending + segmented
+                self.mapper.mark_keyframe(frame)
                 self.counters["segmentation_calls"] += 1
                 return
             else:  # not marked: the next frames stay keyframe candidates until the service is up
@@ -1134,8 +1147,9 @@ class MapperNode(Node):
             self.pub_progress.publish(String(data=json.dumps(progress)))
 
     def _queued(self) -> int:
-        """Frames not integrated yet: the queue and the gravity window's held and released frames."""
-        return len(self.queue) + len(self._held) + len(self._released)
+        """Frames not integrated yet: the queue, the gravity window's held and released frames and the frame
+        the processing step has in hand (``_process_locked``)."""
+        return len(self.queue) + len(self._held) + len(self._released) + self._in_hand
 
     def _report(self) -> None:
         status = self.status()

@@ -59,3 +59,49 @@ def test_the_mapping_loop_outlives_a_failing_step_and_stops_with_the_node(tmp_pa
         assert not thread.is_alive()
     finally:
         rclpy.shutdown()
+
+
+def test_a_keyframe_sent_for_labels_is_never_read_as_done_by_the_status(tmp_path):
+    """`status()` runs on another thread without the map's lock. It read a keyframe counted before it was
+    pending as a keyframe with nothing left to do (keyframes 9, segmented 8, pending 0, queue 0): the bag-launch
+    test took that for a settled map once on a loaded CI machine. The frame in hand counts as queued until the
+    step is over, and a keyframe is counted once it is pending."""
+    import numpy as np
+    import rclpy
+    from sensor_msgs.msg import Image
+
+    from recon_core.frame import CameraIntrinsics, RGBDFrame
+    from ros_nodes.mapper_node import MapperNode
+
+    os.environ["ROS_DOMAIN_ID"] = str(domain_id("spare2"))
+    rclpy.init(args=["--ros-args", "-p", f"data_root:={tmp_path}", "-p", "gravity_check:=false"])
+    try:
+        node = MapperNode()
+        seen: list[dict] = []
+
+        class _Answer:  # a call whose answer never comes in this test
+            def add_done_callback(self, _cb) -> None:
+                pass
+
+            def done(self) -> bool:
+                return False
+
+        def call_async(_request):
+            seen.append(node.status())  # what another thread reading the status now would see
+            return _Answer()
+
+        node.seg_client.service_is_ready = lambda: True  # type: ignore[method-assign]
+        node.seg_client.call_async = call_async  # type: ignore[method-assign]
+        depth = np.full((24, 32), 1.5, np.float32)
+        frame = RGBDFrame(np.zeros((24, 32, 3), np.uint8), depth, CameraIntrinsics(30.0, 30.0, 16.0, 12.0, 32, 24),
+                          np.eye(4), 1_000_000_000)
+        with node.lock:
+            node._released.append((frame, Image(), Image()))
+            node._process_locked()
+        (during,) = seen
+        assert during["queue"] == 1 and during["keyframes"] == 0, during  # in hand: not done
+        after = node.status()
+        assert after["keyframes"] == 1 and after["pending_segmentations"] == 1 and after["queue"] == 0, after
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()
