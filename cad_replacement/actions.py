@@ -132,10 +132,6 @@ def copy_scene(scene: ReplacedScene) -> ReplacedScene:
     return ReplacedScene(scene.name, objects, scene.frame_id, scene.revision)
 
 
-def _lowest_z(obj: PlacedObject) -> float:
-    return float(posed_bounds(obj)[0][2])
-
-
 def _shift(scene: ReplacedScene, obj: PlacedObject, transform: NDArray[np.float64]) -> None:
     """Apply ``transform`` (map frame) to ``obj`` and everything resting on it."""
     for o in [obj, *descendants(scene, obj.name)]:
@@ -171,7 +167,7 @@ def _find(scene: ReplacedScene, name: str) -> PlacedObject:
 def _rest_on_spot(scene: ReplacedScene, obj: PlacedObject, spot: SupportSpot) -> None:
     """Drop/lift ``obj`` (with what rests on it) so its bottom touches the spot's height."""
     delta = np.eye(4)
-    delta[2, 3] = spot.height - _lowest_z(obj)
+    delta[2, 3] = spot.height - obj.resting_height()
     _shift(scene, obj, delta)
     obj.parent, obj.parent_link = spot.owner, spot.link
     if spot.owner == MAP_ROOT:
@@ -239,7 +235,7 @@ def _move(scene: ReplacedScene, action: SceneAction) -> None:
         raise ActionError("move: the pose must be finite")
     _check_upright(pose)
     _shift(scene, obj, pose @ np.linalg.inv(obj.pose))
-    bottom = _lowest_z(obj)
+    bottom = obj.resting_height()
     centre = obj.pose[:2, 3]
     carried = {o.name for o in descendants(scene, obj.name)} | {obj.name}
     spots = [s for o in scene.objects if o.name not in carried for s in support_spots(o)

@@ -1126,6 +1126,16 @@ def _surfel_gap(
     return np.sqrt(en * en + g * g)
 
 
+def _surfel_neighbours(prepared: PreparedObservation, y: NDArray[np.float64], k: int) -> NDArray[np.int64]:
+    """Indices of the ``k`` observed surfels nearest to each point of ``y`` (shape (n,) for k = 1, else (n, k)).
+
+    A point far out (a wild trial step of the fit) may have no neighbour, which the tree answers with n (one
+    past the end), and one that is not finite the tree refuses: such points are queried as far points and
+    every index is clamped into the surfels."""
+    _, nn = prepared.tree.query(np.nan_to_num(y, nan=FAR_M, posinf=FAR_M, neginf=-FAR_M), k=k)
+    return np.minimum(np.asarray(nn, np.int64), len(prepared.surfel_points) - 1)
+
+
 def nearest_surfel(
     prepared: PreparedObservation, y: NDArray[np.float64], normals: NDArray[np.float64], k: int = 4
 ) -> NDArray[np.int64]:
@@ -1136,10 +1146,7 @@ def nearest_surfel(
     nearest point when no neighbour is compatible.
     """
     k = max(1, min(k, len(prepared.surfel_points)))
-    # a point far out (a wild trial step of the fit) may have no neighbour: the tree answers n (one past
-    # the end); one that is not finite it refuses: it is queried as a far point
-    _, nn = prepared.tree.query(np.nan_to_num(y, nan=FAR_M, posinf=FAR_M, neginf=-FAR_M), k=k)
-    nn = np.minimum(nn.reshape(len(y), k), len(prepared.surfel_points) - 1)
+    nn = _surfel_neighbours(prepared, y, k).reshape(len(y), k)
     gap = _surfel_gap(prepared, y[:, None, :], nn)
     compat = np.einsum("nkj,nj->nk", prepared.surfel_normals[nn], normals) > SURFEL_NORMAL_COS
     gap = np.where(compat, gap, np.inf)
@@ -1154,11 +1161,7 @@ def surfel_distance(
     """Distance of points ``y`` to the nearest compatible observed surfel (disk of the sampling radius)."""
     if len(y) == 0:
         return np.zeros(0)
-    if normals is not None:
-        nn = nearest_surfel(prepared, y, normals, k=8)
-    else:
-        _, nn = prepared.tree.query(np.nan_to_num(y, nan=FAR_M, posinf=FAR_M, neginf=-FAR_M))
-        nn = np.minimum(nn, len(prepared.surfel_points) - 1)
+    nn = nearest_surfel(prepared, y, normals, k=8) if normals is not None else _surfel_neighbours(prepared, y, 1)
     e = prepared.surfel_points[nn] - y
     no = prepared.surfel_normals[nn]
     en = np.einsum("ij,ij->i", e, no)

@@ -240,7 +240,7 @@ def settle_observed(objects: Sequence[PlacedObject], *, drop: bool = True,
         dropped += gone
         if drop and obj.movable and kept:
             above = [world[o.name] for o in objects if o.name != obj.name and o.parent != obj.name]
-            kept, clipped_below, gone = _cleared_below(obj, kept, above)
+            kept, clipped_below, gone = _cleared_below(obj, kept, above, world[obj.name].bounds)
             clipped += clipped_below
             dropped += gone
         patches = [_patch(obj, child) for child in objects if child.parent == obj.name] if patch else []
@@ -255,7 +255,7 @@ def settle_observed(objects: Sequence[PlacedObject], *, drop: bool = True,
 
 
 def _cleared_below(obj: PlacedObject, shapes: list[CollisionShape], others: Sequence[_PlacedPieces],
-                   ) -> tuple[list[CollisionShape], int, int]:
+                   own_bounds: NDArray[np.float64] | None = None) -> tuple[list[CollisionShape], int, int]:
     """``obj``'s box pieces whose top reaches less than ``PIECE_DEPTH`` into the underside of another
     object's piece (deeper ones the probe test dropped) end ``CLIP_TOLERANCE`` below it (those left
     thinner than ``CLIP_MIN_THICKNESS`` go); returns the pieces, how many were clipped and how many went.
@@ -263,11 +263,19 @@ def _cleared_below(obj: PlacedObject, shapes: list[CollisionShape], others: Sequ
     Two observed surfaces do not overlap; a few millimetres of overlap is mapping noise, and a movable
     scan yields. The 7-Scenes kitchen (stride 4): a chair pushed under a table, its seat's cell boxes 9 mm
     into the table's apron once the table scan stood at its observed height; PyBullet pushed the chair
-    2.4 cm out."""
+    2.4 cm out.
+
+    ``own_bounds``: the map bounds of ``obj``'s pieces (``_PlacedPieces.bounds``); only the other pieces
+    whose map bounds overlap them are brought into ``obj``'s frame (default: every piece)."""
     inv = np.linalg.inv(np.asarray(obj.link_poses()[obj.model.links[0].name], np.float64))
+    reach = None if own_bounds is None or not len(own_bounds) else \
+        np.array([own_bounds[:, 0].min(axis=0), own_bounds[:, 1].max(axis=0)])
     boxes = []
     for other in others:
-        for link, _shape, points in other.local_pieces():
+        pieces = other.local_pieces()
+        near = range(len(pieces)) if reach is None else np.flatnonzero(_overlaps(reach, other.bounds))
+        for k in near:
+            link, _shape, points = pieces[k]
             if len(points) == 0:
                 continue
             pose = np.asarray(other.link_pose(link.name), np.float64)

@@ -259,7 +259,7 @@ def support_mismatch(parent: PlacedObject, kids: Sequence[PlacedObject]) -> floa
     spots = support_spots(parent)
     worst = 0.0
     for kid in kids:
-        worst = max(worst, abs(support_for(parent, kid, spots).height - _lowest(kid)))
+        worst = max(worst, abs(support_for(parent, kid, spots).height - kid.resting_height()))
     return worst
 
 
@@ -277,7 +277,7 @@ def support_for(parent: PlacedObject, obj: PlacedObject, spots: Sequence[Support
     levels (``scan_features``: every surface but its top) count only within ``SCAN_LEVEL_TOLERANCE_M``.
     """
     centre, _radius, height = _footprint(obj)
-    bottom = _lowest(obj)
+    bottom = obj.resting_height()
     if parent.model.source == "observed" and len(spots) > 1:
         top = max(spots, key=lambda sp: sp.height)
         spots = [sp for sp in spots if sp is top or abs(sp.height - bottom) <= SCAN_LEVEL_TOLERANCE_M]
@@ -397,7 +397,7 @@ def separate_neighbours(scene: ReplacedScene, solids: dict[str, ObjectSolids], m
                 trial, trial_solids = _slide(mover, step, hulls)
                 centre, _r, _h = _footprint(trial)
                 spots = [sp for sp in support_spots(objects[mover.parent])
-                         if abs(sp.height - _lowest(trial)) < 0.01]
+                         if abs(sp.height - trial.resting_height()) < 0.01]
                 if not any(points_in_polygon(centre[None], sp.polygon)[0] for sp in spots) and \
                         objects[mover.parent].model.source != "box":
                     continue
@@ -417,13 +417,9 @@ def separate_neighbours(scene: ReplacedScene, solids: dict[str, ObjectSolids], m
     return moved
 
 
-def _lowest(obj: PlacedObject) -> float:
-    return obj.resting_height()
-
-
 def _rest_like(trial: PlacedObject, reference: PlacedObject) -> None:
     """Put the alternative's bottom where the current choice's bottom is (on the same support)."""
-    trial.pose[2, 3] += _lowest(reference) - _lowest(trial)
+    trial.pose[2, 3] += reference.resting_height() - trial.resting_height()
 
 
 def _footprint(obj: PlacedObject) -> tuple[NDArray[np.float64], float, float]:
@@ -521,7 +517,7 @@ def snap_to_supports(scene: ReplacedScene) -> dict[str, float]:
         centre, radius, _height = _footprint(obj)
         spot = support_for(parent, obj, support_spots(parent))
         move = np.zeros(3)
-        move[2] = spot.height - _lowest(obj)
+        move[2] = spot.height - obj.resting_height()
         if parent.model.source != "box":  # layout slabs are the room: nothing falls off the floor
             move[:2] = _onto_surface(centre, spot.polygon, 0.5 * radius)
             if spot.clearance is not None:
@@ -560,7 +556,7 @@ def posed_mesh(obj: PlacedObject) -> trimesh.Trimesh:
 
 def support_gap(obj: PlacedObject, support_z: float) -> float:
     """Signed gap (m) between the object's bottom and its support height (negative: sunk in)."""
-    return _lowest(obj) - support_z
+    return obj.resting_height() - support_z
 
 
 __all__ = ["MAX_PENETRATION_M", "CheckReport", "PhysicalCheck", "pair_penetrations", "posed_mesh", "snap_to_supports",

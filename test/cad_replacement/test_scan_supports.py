@@ -285,3 +285,18 @@ def test_a_movable_scan_reaching_a_few_millimetres_into_what_is_above_it_is_cut_
         [0.0, -1.2, 0.5]), True, parent="floor")
     kept = list(clear.model.links[0].collisions or ())
     assert _cleared_below(clear, kept, [_PlacedPieces(table)]) == (kept, 0, 0)
+
+
+def test_a_scan_moved_by_an_action_rests_as_the_physical_check_rests_it():
+    """Actions (``apply_action`` move) and the physical check share one bottom (``PlacedObject.resting_height``):
+    a chair scan seen without its legs, moved across the floor, keeps its seat at the height it was seen."""
+    from cad_replacement.actions import SceneAction, apply_action
+
+    seat = trimesh.creation.box([0.45, 0.45, 0.05]).apply_translation([0.0, 0.0, 0.45])  # 0.425-0.475 m
+    chair = _observed_on_the_floor(1, "chair_1", "chair", seat, True, parent="floor")
+    scene = ReplacedScene("move", [_floor(), chair])
+    target = chair.pose.copy()
+    target[0, 3] += 1.0
+    moved = apply_action(scene, SceneAction("move", object_name="chair_1", pose=target)).object("chair_1")
+    assert moved.pose[0, 3] == pytest.approx(chair.pose[0, 3] + 1.0)
+    assert moved.resting_height() == pytest.approx(0.0, abs=1e-6) and _bottom(moved) == pytest.approx(0.425, abs=1e-6)

@@ -79,9 +79,11 @@ def test_a_keyframe_sent_for_labels_is_never_read_as_done_by_the_status(tmp_path
         node = MapperNode()
         seen: list[dict] = []
 
-        class _Answer:  # a call whose answer never comes in this test
-            def add_done_callback(self, _cb) -> None:
-                pass
+        waiting: list = []  # done-callbacks of calls whose answer never comes in this test
+
+        class _Answer:
+            def add_done_callback(self, cb) -> None:
+                waiting.append(cb)
 
             def done(self) -> bool:
                 return False
@@ -99,6 +101,7 @@ def test_a_keyframe_sent_for_labels_is_never_read_as_done_by_the_status(tmp_path
             node._released.append((frame, Image(), Image()))
             node._process_locked()
         (during,) = seen
+        assert len(waiting) == 1  # the answer wakes the mapping loop when it comes
         assert during["queue"] == 1 and during["keyframes"] == 0, during  # in hand: not done
         after = node.status()
         assert after["keyframes"] == 1 and after["pending_segmentations"] == 1 and after["queue"] == 0, after
