@@ -460,7 +460,8 @@ class PreparedObservation:
 
 def estimate_normals(points: NDArray[np.float64], center: NDArray[np.float64], k: int = 16) -> NDArray[np.float64]:
     """PCA normals of a point cloud oriented away from ``center`` (observations without normals)."""
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    # a copy: Open3D refuses read-only arrays, and observations hand theirs out read-only
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.array(points, dtype=np.float64)))
     pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(knn=min(k, max(3, len(points) - 1))))
     n = np.asarray(pcd.normals, dtype=np.float64)
     flip = np.einsum("ij,ij->i", n, points - center) < 0.0
@@ -933,8 +934,9 @@ class AlignmentProblem:
             if self.visible_mask is None:  # fixed for one fit: keeps the residual vector's meaning
                 area = self.geom.sample_area * self.pool_count / max(len(ny), 1) * float(np.prod(s)) ** (2 / 3)
                 # model surface whose front no camera observed is unseen, not missing (``alignment_error``)
+                seeable = prep.obs.observed_in_front(y, ny) & ~hidden_by_loads(prep, y, ny, self.cfg)
                 self.visible_mask = visible_samples(
-                    ny, prep.obs.observed_in_front(y, ny), prep.bin_area, area, self.cfg.visible_min_coverage,
+                    ny, seeable, prep.bin_area, area, self.cfg.visible_min_coverage,
                     samples_map=y if self.face_reach is not None else None, face_area=prep.face_area,
                     face_reach=self.face_reach or 1,
                 )
@@ -1173,6 +1175,15 @@ def surfel_distance(
     return np.where(has_n, d_surfel, d_point)
 
 
+def hidden_by_loads(prepared: PreparedObservation, samples_map: NDArray[np.float64], normals_map: NDArray[np.float64],
+                    cfg: CadReplacementConfig) -> NDArray[np.bool_]:
+    """Ours: CAD samples on a top hidden by what the object carries (``ObjectObservation.hidden_by_loads``):
+    unseen, like the back of an object, so neither the fits nor the AE count them as missing."""
+    if cfg.method != "ours":
+        return np.zeros(len(samples_map), dtype=bool)
+    return prepared.obs.hidden_by_loads(samples_map, normals_map, cfg.load_shadow_elevation_deg)
+
+
 def alignment_error(
     prepared: PreparedObservation,
     scene: o3d.t.geometry.RaycastingScene,
@@ -1189,6 +1200,7 @@ def alignment_error(
     surfel. AE is the RMS over both sets; never NaN (an empty direction contributes nothing).
     """
     pts = prepared.points
+    self_visible = self_visible & ~hidden_by_loads(prepared, samples_map, normals_map, cfg)
     vis = visible_samples(
         normals_map, self_visible, prepared.bin_area, sample_area, cfg.visible_min_coverage,
         samples_map=samples_map, face_area=prepared.face_area,

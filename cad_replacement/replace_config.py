@@ -31,6 +31,10 @@ class CadReplacementConfig:
     #: item 4): model surface in unknown space is not missing data, and a box side facing unknown
     #: space may grow towards the model's own proportions (a half-seen table is not its seen half).
     observed_space: bool = True
+    #: Ours: elevation (deg) of the line of sight along which the loads an object carries hide its top
+    #: (``ObjectObservation.hidden_by_loads``): such model surface is unseen, not missing, in the fits
+    #: and the AE. 0 turns it off (the paper has no such term).
+    load_shadow_elevation_deg: float = 30.0
     #: Ours, with an observed-space grid: the most (m) a CAD sample in unknown space adds to the
     #: CAD -> observation half of the AE (its distance to the observed surface, capped).
     unknown_surface_m: float = 0.01
@@ -233,6 +237,8 @@ class CadReplacementConfig:
             raise ValueError("need 0 < min_scale < 1 < max_scale")
         if self.workers < 0:
             raise ValueError("workers must be >= 0 (0: one per usable CPU, 1: in-process)")
+        if not 0.0 <= self.load_shadow_elevation_deg < 90.0:
+            raise ValueError("load_shadow_elevation_deg must be in [0, 90)")
         if self.robust_scale <= 0.0:
             raise ValueError("robust_scale must be positive")
         if self.layout_margin < 0.0:

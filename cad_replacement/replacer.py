@@ -352,7 +352,8 @@ class CadReplacer:
         return ObjectObservation(node.id, node.name, node.class_name, points, box=box, normals=normals,
                                  support_z=support_z, front_hint=front, mesh=mesh,
                                  observed_space=entity.observed_space if self._reads_observed_space else None,
-                                 walls=tuple(walls), neighbours=_touching(box, others))
+                                 walls=tuple(walls), neighbours=_touching(box, others),
+                                 loads=tuple(children))  # type: ignore[arg-type]
 
     def _node_job(self, node: GraphNode, entity: Entity, graph: ContactGraph, walls: list[Plane],
                   obstacles: list[GravityBox]) -> _Cached | _Job:
@@ -776,6 +777,7 @@ def _observation_digest(obs: ObjectObservation | None) -> str:
              None if obs.front_hint is None else tuple(np.asarray(obs.front_hint, float)))
     h.update(repr(extra).encode())
     h.update(repr([(*b.center, *b.size, b.yaw) for b in obs.neighbours]).encode())
+    h.update(repr([(*b.center, *b.size, b.yaw) for b in obs.loads]).encode())
     if obs.observed_space is not None:  # the grid, and the walls that bound its room
         space = obs.observed_space
         h.update(repr((*space.origin, space.cell, space.shape)).encode())

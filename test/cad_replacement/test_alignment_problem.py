@@ -90,3 +90,16 @@ def test_a_wild_trial_step_gives_finite_residuals_not_an_index_error() -> None:
     with np.errstate(invalid="ignore"):  # its distances are NaN; its index must still be one
         nn = nearest_surfel(prepared, bad, np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]))
     assert np.all((nn >= 0) & (nn < len(prepared.surfel_points)))
+
+
+def test_an_observation_without_normals_gets_estimated_ones() -> None:
+    """Observations hand out read-only points; the PCA normals (Open3D) work on a copy, oriented outwards."""
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(400, 3))
+    pts = 0.2 * d / np.linalg.norm(d, axis=1, keepdims=True) + np.array([1.0, 2.0, 0.5])
+    obs = ObjectObservation(1, "ball", "object", pts)
+    assert not obs.points.flags.writeable
+    prep = PreparedObservation.build(obs, CadReplacementConfig())
+    assert np.allclose(np.linalg.norm(prep.normals, axis=1), 1.0)
+    outward = np.einsum("ij,ij->i", prep.normals, prep.points - np.array([1.0, 2.0, 0.5]))
+    assert np.mean(outward > 0.0) > 0.95
