@@ -26,7 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "baseline, mean / std / worst draw); robustness-quick: its CI subset (2 scenes x 3 draws)")
     p.add_argument("--draws", type=int, metavar="N", help="robustness: noise draws per scene (default 3)")
     p.add_argument("--scenes", nargs="+", metavar="NAME",
-                   help="robustness: only these scenes (suite scenes bench-*, generated gen-*)")
+                   help="robustness: only these scenes (suite scenes bench-*, the protocol's generated gen-*, or "
+                        "gen-SEED[-OBJECTS] for a held-out generated room, e.g. gen-1234-14)")
     p.add_argument("--paper-birth", action="store_true",
                    help="robustness: also run the full mapper with the paper's birth rule for thing entities "
                    "(every detection is born, no fragment merging), side by side on the same draws")

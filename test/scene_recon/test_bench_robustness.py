@@ -87,6 +87,26 @@ def test_protocol_specs_validate_their_scenes_draws_and_variants():
     assert sum(s.startswith("bench-") for s in full.scenes) == 4 and sum(s.startswith("gen-") for s in full.scenes) >= 3
     with pytest.raises(ValueError, match="unknown scene"):
         ProtocolSpec(("nowhere",), (0, 1, 2))
+    with pytest.raises(ValueError, match="unknown scene"):
+        ProtocolSpec(("gen-12x",), (0,))
+
+
+def test_a_held_out_room_is_named_by_its_seed_and_object_count():
+    """gen-SEED[-OBJECTS]: a generated room the protocol does not hold, frames growing with its objects like the
+    protocol's own rooms; the protocol's names keep their own definitions."""
+    from scene_recon.bench.robustness import GENERATED, held_out_scene, scene_definition
+
+    room = scene_definition("gen-1234-22")
+    assert (room.name, room.seed, room.objects, room.frames) == ("gen-1234-22", 1234, 22, 168)
+    assert held_out_scene("gen-99").objects == robustness.HELD_OUT_OBJECTS and held_out_scene("gen-99").frames == 120
+    assert held_out_scene("gen-5-10").frames == 100 and held_out_scene("gen-5-40").frames == 300
+    assert scene_definition("gen-4242") is GENERATED["gen-4242"]
+    assert held_out_scene("bench-small") is None and held_out_scene("gen-") is None
+    with pytest.raises(ValueError, match="4-40"):
+        held_out_scene("gen-7-200")
+    with pytest.raises(ValueError, match="unknown scene"):
+        scene_definition("kitchen")
+    assert ProtocolSpec(("gen-1234-14", "bench-small"), (0, 1)).scenes == ("gen-1234-14", "bench-small")
     with pytest.raises(ValueError, match="distinct"):
         ProtocolSpec(("bench-small",), (0, 0))
     with pytest.raises(ValueError):
