@@ -12,7 +12,7 @@ REQ_STAMP := $(VENV)/.requirements.stamp
 PKG_STAMP := $(VENV)/.package.stamp
 DEMO_OUT ?= out/demo
 
-.PHONY: help setup system-deps test lint demo bench bench-quick bench-full bench-robustness bench-robustness-quick clean
+.PHONY: help setup system-deps test lint demo bench bench-quick bench-full bench-robustness bench-robustness-quick bench-heldout clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed -E 's/:.*## /\t/' | column -t -s $$'\t'
@@ -65,6 +65,10 @@ bench-robustness: setup  ## the robustness protocol (~1 h on 2 cores): 8 scenes 
 
 bench-robustness-quick: setup  ## its CI subset (~5 min): 2 scenes (one outside the suite) x 3 draws, full vs baseline -> $(BENCH_OUT)/robustness-quick
 	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite robustness-quick --out $(BENCH_OUT)/robustness-quick
+
+HELDOUT_SCENES ?= gen-1234-14 gen-2468-18 gen-9090-12 gen-3131-22
+bench-heldout: setup  ## the protocol on generated rooms it does not hold (~5 min): HELDOUT_SCENES x 2 draws, full vs baseline -> $(BENCH_OUT)/heldout
+	$(ROS_ENV) $(VENV)/bin/scene-recon benchmark --suite robustness --scenes $(HELDOUT_SCENES) --draws 2 --out $(BENCH_OUT)/heldout
 
 clean:  ## remove build products (keeps the venv)
 	rm -rf .build build log out .pytest_cache
