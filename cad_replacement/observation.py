@@ -320,24 +320,12 @@ UP_FACE_COS = 0.9
 
 
 def _ray_meets_box(origins: NDArray[np.float64], direction: NDArray[np.float64], box: GravityBox) -> NDArray[np.bool_]:
-    """Per origin: does the ray ``origin + t direction`` (t >= 0) meet the gravity-aligned ``box`` (slab test
-    in the box frame; an origin inside the box meets it)?"""
-    c, s = np.cos(box.yaw), np.sin(box.yaw)
-    rel = np.asarray(origins, dtype=np.float64) - np.asarray(box.center, dtype=np.float64)
-    local = np.c_[c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1], rel[:, 2]]
-    d = np.array([c * direction[0] + s * direction[1], -s * direction[0] + c * direction[1], direction[2]])
-    half = 0.5 * np.asarray(box.size, dtype=np.float64)
-    t_lo = np.full(len(local), 0.0)
-    t_hi = np.full(len(local), np.inf)
-    for k in range(3):
-        if abs(d[k]) < EPS:  # parallel to the slab: inside it or never
-            outside = np.abs(local[:, k]) > half[k]
-            t_hi = np.where(outside, -np.inf, t_hi)
-            continue
-        a, b = (-half[k] - local[:, k]) / d[k], (half[k] - local[:, k]) / d[k]
-        t_lo = np.maximum(t_lo, np.minimum(a, b))
-        t_hi = np.minimum(t_hi, np.maximum(a, b))
-    return t_hi >= t_lo
+    """Per origin: does the ray ``origin + t direction`` (t >= 0, 3-D) meet the gravity-aligned ``box`` (an
+    origin inside the box meets it)?"""
+    o = np.asarray(origins, dtype=np.float64)
+    local = np.c_[box.to_local_xy(o[:, :2]), o[:, 2] - float(box.center[2])]
+    d = np.r_[_local_direction(box, direction[:2]), direction[2]]
+    return np.isfinite(_slab_entry(local, d, 0.5 * np.asarray(box.size, dtype=np.float64)))
 
 
 #: A child whose observed bottom is within this (m) of its parent's observed top rests on that top.
@@ -397,27 +385,36 @@ def _side_directions(box: GravityBox) -> NDArray[np.float64]:
     return np.stack([ex, ey, -ex, -ey])
 
 
-def _ray_box_entry(
-    origins: NDArray[np.float64], direction: NDArray[np.float64], box: GravityBox
-) -> NDArray[np.float64]:
-    """Distance along ``direction`` (xy) from each origin to the footprint of ``box`` (inf if missed)."""
-    local_o = box.to_local_xy(origins)
+def _local_direction(box: GravityBox, direction: NDArray[np.float64]) -> NDArray[np.float64]:
+    """An xy direction in the box's footprint frame (``GravityBox.to_local_xy`` without the centre)."""
     c, s = np.cos(box.yaw), np.sin(box.yaw)
-    d = np.array([c * direction[0] + s * direction[1], -s * direction[0] + c * direction[1]])
-    half = 0.5 * box.size[:2]
+    return np.array([c * direction[0] + s * direction[1], -s * direction[0] + c * direction[1]])
+
+
+def _slab_entry(local: NDArray[np.float64], d: NDArray[np.float64], half: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Slab test in a box's own frame (2-D or 3-D): distance along ``d`` from each origin ``local`` to the box
+    ``|x| <= half`` (0 for an origin inside, inf if missed)."""
     safe = np.where(np.abs(d) < EPS, EPS, d)
-    t1 = (-half - local_o) / safe
-    t2 = (half - local_o) / safe
+    t1 = (-half - local) / safe
+    t2 = (half - local) / safe
     tmin = np.minimum(t1, t2)
     tmax = np.maximum(t1, t2)
     # Axis-parallel rays: inside the slab -> unbounded, outside -> never enters.
-    inside = np.abs(local_o) <= half
-    tmin = np.where(np.abs(d) < EPS, np.where(inside, -np.inf, np.inf), tmin)
-    tmax = np.where(np.abs(d) < EPS, np.where(inside, np.inf, -np.inf), tmax)
+    parallel = np.abs(d) < EPS
+    inside = np.abs(local) <= half
+    tmin = np.where(parallel, np.where(inside, -np.inf, np.inf), tmin)
+    tmax = np.where(parallel, np.where(inside, np.inf, -np.inf), tmax)
     enter = tmin.max(axis=1)
     leave = tmax.min(axis=1)
     hit = (leave >= np.maximum(enter, 0.0)) & np.isfinite(enter)
     return np.where(hit, np.maximum(enter, 0.0), np.inf)
+
+
+def _ray_box_entry(
+    origins: NDArray[np.float64], direction: NDArray[np.float64], box: GravityBox
+) -> NDArray[np.float64]:
+    """Distance along ``direction`` (xy) from each origin to the footprint of ``box`` (inf if missed)."""
+    return _slab_entry(box.to_local_xy(origins), _local_direction(box, direction), 0.5 * box.size[:2])
 
 
 def side_clearances(

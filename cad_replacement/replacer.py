@@ -333,15 +333,15 @@ class CadReplacer:
         if len(mesh.faces) == 0:
             raise ObservationError(f"{node.name!r}: mesh is empty")
         points, normals = sample_mesh(mesh, MESH_SAMPLES, 0)
-        children = [graph.nodes[c].box for c, e in graph.supports.items()
-                    if e.parent_id == node.id and c in graph.nodes and graph.nodes[c].box is not None]
-        keep = clean_entity_points(points, normals, support_z, children)  # type: ignore[arg-type]
+        children = [b for c, e in graph.supports.items()
+                    if e.parent_id == node.id and c in graph.nodes and (b := graph.nodes[c].box) is not None]
+        keep = clean_entity_points(points, normals, support_z, children)
         if trimmed or not keep.all():
             points, normals = points[keep], normals[keep]
         # the top hidden under what this object carries (observation.carried_footprint_points)
         top_z = float(np.quantile(points[:, 2], 0.98))
         spacing = float(np.sqrt(max(mesh.area, 1e-9) / MESH_SAMPLES))
-        extra, extra_normals = carried_footprint_points(top_z, children, spacing,  # type: ignore[arg-type]
+        extra, extra_normals = carried_footprint_points(top_z, children, spacing,
                                                         int(MAX_FOOTPRINT_SHARE * len(points)))
         if len(extra):
             points, normals = np.concatenate([points, extra]), np.concatenate([normals, extra_normals])
@@ -353,7 +353,7 @@ class CadReplacer:
                                  support_z=support_z, front_hint=front, mesh=mesh,
                                  observed_space=entity.observed_space if self._reads_observed_space else None,
                                  walls=tuple(walls), neighbours=_touching(box, others),
-                                 loads=tuple(children))  # type: ignore[arg-type]
+                                 loads=tuple(children))
 
     def _node_job(self, node: GraphNode, entity: Entity, graph: ContactGraph, walls: list[Plane],
                   obstacles: list[GravityBox]) -> _Cached | _Job:

@@ -51,8 +51,9 @@ GENERATED: dict[str, SuiteScene] = {s.name: s for s in [
 
 #: A room named on the command line, ``gen-SEED`` or ``gen-SEED-OBJECTS`` (``held_out_scene``): generated like
 #: the protocol's own rooms with a seed it does not use. Over sessions the protocol's rooms are the rooms every
-#: change was measured on; a held-out room shows whether a gain carries over (2026-11-30: four of them gave
-#: 57 % mapped pose success where the protocol's generated rooms give 72-88 %).
+#: change was measured on; a held-out room shows whether a gain carries over (2026-11-30, `make bench-heldout`: four
+#: of them x 2 draws gave mapped pose success 59.8 ± 20.5 %, worst draw 20.0, where the protocol's rooms give 83.1
+#: ± 14.3 %, worst 50.0; docs/robustness_report_heldout.md).
 HELD_OUT_NAME = re.compile(r"^gen-(\d{1,9})(?:-(\d{1,3}))?$")
 #: Objects of a held-out room named without a count, and the range a count may take.
 HELD_OUT_OBJECTS = 16
